@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Create the virtual environment and install stealth-ns with its dev extras.
+# Used by `make demo` / `make test` (and so by .ci/run). Idempotent.
+set -euo pipefail
+VENV="${1:-.venv}"
+cd "$(dirname "$0")/.."
+
+# open3d (seed points, PLY export) needs the system library libusb-1.0.
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+        echo "bootstrap: installing libusb-1.0-0 (needed by open3d)"
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+    else
+        echo "bootstrap: open3d needs the system library libusb-1.0; install it first (Debian/Ubuntu: sudo apt-get install libusb-1.0-0)" >&2
+        exit 1
+    fi
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+    echo "bootstrap: creating $VENV"
+    python3 -m venv "$VENV"
+fi
+"$VENV/bin/python" -m pip install -q --upgrade pip
+# torch comes from the package registry (its CUDA build runs on CPU too). A local CPU-only
+# torch wheel does not work with nerfstudio: PyPI's torchvision needs the CUDA libraries.
+echo "bootstrap: installing stealth-ns and its dependencies into $VENV (first time: several minutes)"
+"$VENV/bin/python" -m pip install -q -e '.[dev]'
+"$VENV/bin/python" -c "import torch, torchvision, nerfstudio, gsplat, open3d" \
+    || { echo "bootstrap: the environment in $VENV is broken (see the import error above)" >&2; exit 1; }
+echo "bootstrap: ready ($VENV)"

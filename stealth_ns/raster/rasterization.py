@@ -1,0 +1,210 @@
+"""``rasterization``: gsplat's call contract with a choice of backend.
+
+Backends:
+  - ``"gsplat"``: gsplat's CUDA kernels (tensors on a CUDA device);
+  - ``"cpp"``: the compiled CPU kernel (``cpp_backend``), built on first use;
+  - ``"torch"``: the pure-PyTorch reference (``torch_backend``), slow but readable;
+  - ``"auto"``: gsplat on CUDA tensors, otherwise cpp if it compiles, else torch (with one
+    warning saying why).
+
+The CPU path: projection and SH colour in torch (``projection``), tile intersection
+(``tiles``), then the chosen CPU rasterize-to-pixels kernel. The returned ``info`` has
+what gsplat's ``DefaultStrategy`` reads: ``means2d`` (non-leaf, so its gradient can be
+retained), ``radii [C, N]``, ``width``, ``height``, ``n_cameras``, ``gaussian_ids=None``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from stealth_ns.raster.projection import project_gaussians, quat_scale_to_covar, spherical_harmonics
+from stealth_ns.raster.tiles import isect_tiles, tile_grid
+from stealth_ns.raster.torch_backend import rasterize_to_pixels_torch
+
+Backend = Literal["auto", "gsplat", "cpp", "torch"]
+RenderMode = Literal["RGB", "D", "ED", "RGB+D", "RGB+ED"]
+
+_warned_fallback = False
+
+
+def resolve_backend(backend: Backend, device: torch.device) -> str:
+    """The concrete backend ``"gsplat" | "cpp" | "torch"`` that ``backend`` means on ``device``."""
+    if backend == "auto":
+        if device.type == "cuda":
+            return "gsplat"
+        return "cpp" if cpp_available() else "torch"
+    if backend == "gsplat" and device.type != "cuda":
+        raise ValueError("the gsplat backend needs CUDA tensors; use backend 'cpp' or 'torch' on CPU")
+    if backend == "cpp" and not cpp_available():
+        from stealth_ns.raster import cpp_backend
+
+        raise RuntimeError(f"the compiled CPU rasterizer is unavailable: {cpp_backend.compile_error()}")
+    return backend
+
+
+def cpp_available() -> bool:
+    """True when the compiled CPU kernel builds (or is cached); warns once when it does not."""
+    global _warned_fallback
+    try:
+        from stealth_ns.raster import cpp_backend
+    except ImportError as err:  # pragma: no cover - only when the module itself is missing
+        reason = str(err)
+        ok = False
+    else:
+        ok = cpp_backend.load_extension() is not None
+        reason = "" if ok else str(cpp_backend.compile_error())
+    if not ok and not _warned_fallback:
+        warnings.warn(
+            f"stealth-ns: compiled CPU rasterizer unavailable ({reason}); using the slow pure-PyTorch one",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        _warned_fallback = True
+    return ok
+
+
+def rasterization(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    colors: Tensor,
+    viewmats: Tensor,
+    Ks: Tensor,
+    width: int,
+    height: int,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    radius_clip: float = 0.0,
+    eps2d: float = 0.3,
+    sh_degree: int | None = None,
+    packed: bool = False,
+    tile_size: int = 16,
+    backgrounds: Tensor | None = None,
+    render_mode: RenderMode = "RGB",
+    absgrad: bool = False,
+    rasterize_mode: Literal["classic", "antialiased"] = "classic",
+    backend: Backend = "auto",
+    **gsplat_kwargs,
+) -> tuple[Tensor, Tensor, dict]:
+    """Render Gaussians into C cameras (gsplat's ``rasterization`` contract).
+
+    Args:
+        means: [N, 3]; quats: [N, 4] (w, x, y, z); scales: [N, 3] (not log);
+        opacities: [N] in [0, 1].
+        colors: [N, D] features, or [N, K, 3] SH coefficients when ``sh_degree`` is set.
+        viewmats: [C, 4, 4] world-to-camera (OpenCV); Ks: [C, 3, 3].
+        width, height: image size in pixels.
+        render_mode: "RGB", "D" (accumulated depth), "ED" (expected depth), "RGB+D", "RGB+ED".
+        backgrounds: [C, D] (colour channels only).
+        backend: see module docstring.
+
+    Returns:
+        render_colors [C, H, W, D'], render_alphas [C, H, W, 1], info dict.
+    """
+    name = resolve_backend(backend, means.device)
+    if name == "gsplat":
+        from gsplat.rendering import rasterization as gsplat_rasterization
+
+        return gsplat_rasterization(
+            means=means,
+            quats=quats,
+            scales=scales,
+            opacities=opacities,
+            colors=colors,
+            viewmats=viewmats,
+            Ks=Ks,
+            width=width,
+            height=height,
+            near_plane=near_plane,
+            far_plane=far_plane,
+            radius_clip=radius_clip,
+            eps2d=eps2d,
+            sh_degree=sh_degree,
+            packed=packed,
+            tile_size=tile_size,
+            backgrounds=backgrounds,
+            render_mode=render_mode,
+            absgrad=absgrad,
+            rasterize_mode=rasterize_mode,
+            **gsplat_kwargs,
+        )
+    if absgrad:
+        raise ValueError("absgrad is only computed by gsplat's CUDA backward; use absgrad=False on CPU")
+    if rasterize_mode != "classic":
+        raise ValueError("the CPU rasterizers implement rasterize_mode='classic' only")
+
+    C = viewmats.shape[0]
+    covars = quat_scale_to_covar(quats, scales)
+    radii, means2d, depths, conics = project_gaussians(
+        means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip
+    )
+    opac = opacities[None, :].expand(C, -1)
+
+    if sh_degree is not None:
+        campos = torch.linalg.inv(viewmats)[:, :3, 3]
+        dirs = means[None, :, :] - campos[:, None, :]
+        coeffs = colors if colors.dim() == 4 else colors[None].expand(C, -1, -1, -1)
+        feats = torch.clamp_min(spherical_harmonics(sh_degree, dirs, coeffs) + 0.5, 0.0)
+    else:
+        feats = colors if colors.dim() == 3 else colors[None].expand(C, -1, -1)
+
+    if render_mode in ("RGB+D", "RGB+ED"):
+        feats = torch.cat([feats, depths[..., None]], dim=-1)
+        if backgrounds is not None:
+            backgrounds = torch.cat([backgrounds, backgrounds.new_zeros(C, 1)], dim=-1)
+    elif render_mode in ("D", "ED"):
+        feats = depths[..., None]
+        if backgrounds is not None:
+            backgrounds = backgrounds.new_zeros(C, 1)
+
+    tile_width, tile_height = tile_grid(width, height, tile_size)
+    isect_offsets, flatten_ids = isect_tiles(means2d, radii, depths, tile_size, tile_width, tile_height)
+    raster = _cpu_kernel(name)
+    render_colors, render_alphas = raster(
+        means2d,
+        conics,
+        feats.contiguous(),
+        opac.contiguous(),
+        width,
+        height,
+        tile_size,
+        isect_offsets,
+        flatten_ids,
+        backgrounds,
+    )
+    if render_mode in ("ED", "RGB+ED"):
+        expected = render_colors[..., -1:] / render_alphas.clamp(min=1e-10)
+        render_colors = torch.cat([render_colors[..., :-1], expected], dim=-1)
+
+    info = {
+        "camera_ids": None,
+        "gaussian_ids": None,
+        "radii": radii,
+        "means2d": means2d,
+        "depths": depths,
+        "conics": conics,
+        "opacities": opac,
+        "tile_width": tile_width,
+        "tile_height": tile_height,
+        "isect_offsets": isect_offsets,
+        "flatten_ids": flatten_ids,
+        "width": width,
+        "height": height,
+        "tile_size": tile_size,
+        "n_cameras": C,
+        "backend": name,
+    }
+    return render_colors, render_alphas, info
+
+
+def _cpu_kernel(name: str):
+    if name == "cpp":
+        from stealth_ns.raster.cpp_backend import rasterize_to_pixels_cpp
+
+        return rasterize_to_pixels_cpp
+    return rasterize_to_pixels_torch
