@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Literal
 
 import tyro
 
@@ -47,14 +47,51 @@ class MakeScene:
         print(summary)
 
 
-Commands = (
-    Annotated[MakeScene, tyro.conf.subcommand("make-scene")]
-)
+# command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
+# tyro union) so that every command, nested ones included, gets its own --help.
+COMMANDS: dict[str, type] = {
+    "make-scene": MakeScene,
+}
+
+
+def _usage() -> str:
+    lines = [
+        "usage: stealth-ns COMMAND [OPTIONS]   (stealth-ns COMMAND --help for its options)",
+        "",
+        "commands:",
+    ]
+    for name, cls in COMMANDS.items():
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        lines.append(f"  {name:<16} {doc}")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> None:
-    cmd = tyro.cli(Commands, args=argv, prog="stealth-ns")
+    argv = list(sys.argv[1:] if argv is None else argv)
+    words = []
+    while argv and not argv[0].startswith("-") and " ".join([*words, argv[0]]) in _command_prefixes():
+        words.append(argv.pop(0))
+    name = " ".join(words)
+    if name not in COMMANDS:
+        if not words and argv and argv[0] in ("-h", "--help"):
+            print(_usage())
+            return
+        unknown = " ".join(words) or (argv[0] if argv else "")
+        raise StealthNSError(
+            f"unknown command {unknown!r}; commands: {', '.join(COMMANDS)}"
+            if unknown
+            else f"no command given; commands: {', '.join(COMMANDS)}"
+        )
+    cmd = tyro.cli(COMMANDS[name], args=argv, prog=f"stealth-ns {name}")
     cmd.main()
+
+
+def _command_prefixes() -> set[str]:
+    prefixes = set()
+    for name in COMMANDS:
+        parts = name.split()
+        prefixes.update(" ".join(parts[: i + 1]) for i in range(len(parts)))
+    return prefixes
 
 
 def entrypoint() -> None:

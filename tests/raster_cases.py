@@ -28,8 +28,13 @@ def intrinsics(width: int, height: int, fov_deg: float = 60.0) -> torch.Tensor:
     return torch.tensor([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
 
 
-def random_gaussians(n: int, seed: int = 0, spread: float = 1.0, scale: tuple[float, float] = (0.03, 0.15),
-                     sh_degree: int | None = None):
+def random_gaussians(
+    n: int,
+    seed: int = 0,
+    spread: float = 1.0,
+    scale: tuple[float, float] = (0.03, 0.15),
+    sh_degree: int | None = None,
+):
     g = torch.Generator().manual_seed(seed)
     means = (torch.rand(n, 3, generator=g) - 0.5) * 2 * spread
     quats = torch.randn(n, 4, generator=g)
@@ -64,7 +69,9 @@ def make_case(name: str) -> dict:
     else:
         raise KeyError(name)
     sh_degree = kw.pop("sh_degree", None)
-    means, quats, scales, opacities, colors = random_gaussians(n, seed=hash(name) % 1000, sh_degree=sh_degree, **kw)
+    means, quats, scales, opacities, colors = random_gaussians(
+        n, seed=hash(name) % 1000, sh_degree=sh_degree, **kw
+    )
     if name == "dense_opaque":
         opacities = torch.full_like(opacities, 0.95)
         opacities[::3] = 0.9999  # above the 0.999 alpha clamp
@@ -72,8 +79,18 @@ def make_case(name: str) -> dict:
         scales[:, 1:] = 0.003
     viewmats = torch.stack([look_at_viewmat(e) for e in eyes[:C]])
     Ks = intrinsics(W, H)[None].repeat(C, 1, 1)
-    return dict(means=means, quats=quats, scales=scales, opacities=opacities, colors=colors, viewmats=viewmats,
-                Ks=Ks, width=W, height=H, sh_degree=sh_degree)
+    return dict(
+        means=means,
+        quats=quats,
+        scales=scales,
+        opacities=opacities,
+        colors=colors,
+        viewmats=viewmats,
+        Ks=Ks,
+        width=W,
+        height=H,
+        sh_degree=sh_degree,
+    )
 
 
 CASES = ["basic", "two_cameras_sh3", "non_square_odd", "one", "zero", "anisotropic", "dense_opaque"]

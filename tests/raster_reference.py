@@ -16,8 +16,9 @@ from stealth_ns.raster.projection import project_gaussians, quat_scale_to_covar,
 from stealth_ns.raster.tiles import tile_grid, tile_ranges
 
 
-def brute_force_pixels(means2d, conics, colors, opacities, radii, depths, width, height, tile_size=16,
-                       backgrounds=None) -> tuple[Tensor, Tensor]:
+def brute_force_pixels(
+    means2d, conics, colors, opacities, radii, depths, width, height, tile_size=16, backgrounds=None
+) -> tuple[Tensor, Tensor]:
     """[C,N,*] projected Gaussians -> colours [C,H,W,D], alphas [C,H,W,1]."""
     C, N, D = colors.shape
     tw, th = tile_grid(width, height, tile_size)
@@ -33,7 +34,9 @@ def brute_force_pixels(means2d, conics, colors, opacities, radii, depths, width,
         for g in torch.argsort(depths[c], stable=True).tolist():
             if radii[c, g] <= 0:
                 continue
-            in_rect = (tx >= tmin[c, g, 0]) & (tx < tmax[c, g, 0]) & (ty >= tmin[c, g, 1]) & (ty < tmax[c, g, 1])
+            in_rect = (
+                (tx >= tmin[c, g, 0]) & (tx < tmax[c, g, 0]) & (ty >= tmin[c, g, 1]) & (ty < tmax[c, g, 1])
+            )
             dx = means2d[c, g, 0] - px
             dy = means2d[c, g, 1] - py
             a, b, cc = conics[c, g]
@@ -54,17 +57,32 @@ def brute_force_pixels(means2d, conics, colors, opacities, radii, depths, width,
     return torch.stack(out_c), torch.stack(out_a)
 
 
-def brute_force_render(means, quats, scales, opacities, colors, viewmats, Ks, width, height,
-                       sh_degree=None, backgrounds=None, render_mode="RGB"):
+def brute_force_render(
+    means,
+    quats,
+    scales,
+    opacities,
+    colors,
+    viewmats,
+    Ks,
+    width,
+    height,
+    sh_degree=None,
+    backgrounds=None,
+    render_mode="RGB",
+):
     """Full reference: projection + SH + brute-force blending, same contract as rasterization()."""
     C = viewmats.shape[0]
     radii, means2d, depths, conics = project_gaussians(
-        means, quat_scale_to_covar(quats, scales), viewmats, Ks, width, height)
+        means, quat_scale_to_covar(quats, scales), viewmats, Ks, width, height
+    )
     if sh_degree is not None:
         campos = torch.linalg.inv(viewmats)[:, :3, 3]
         feats = torch.clamp_min(
-            spherical_harmonics(sh_degree, means[None] - campos[:, None], colors[None].expand(C, -1, -1, -1)) + 0.5,
-            0.0)
+            spherical_harmonics(sh_degree, means[None] - campos[:, None], colors[None].expand(C, -1, -1, -1))
+            + 0.5,
+            0.0,
+        )
     else:
         feats = colors[None].expand(C, -1, -1)
     if render_mode in ("RGB+D", "RGB+ED"):
@@ -74,8 +92,17 @@ def brute_force_render(means, quats, scales, opacities, colors, viewmats, Ks, wi
     elif render_mode in ("D", "ED"):
         feats = depths[..., None]
         backgrounds = None if backgrounds is None else backgrounds.new_zeros(C, 1)
-    img, alpha = brute_force_pixels(means2d, conics, feats, opacities[None].expand(C, -1), radii, depths,
-                                    width, height, backgrounds=backgrounds)
+    img, alpha = brute_force_pixels(
+        means2d,
+        conics,
+        feats,
+        opacities[None].expand(C, -1),
+        radii,
+        depths,
+        width,
+        height,
+        backgrounds=backgrounds,
+    )
     if render_mode in ("ED", "RGB+ED"):
         img = torch.cat([img[..., :-1], img[..., -1:] / alpha.clamp(min=1e-10)], -1)
     return img, alpha

@@ -48,7 +48,9 @@ def test_torch_backend_matches_brute_force(name, mode):
         torch.testing.assert_close(img, ref_img, atol=1e-4, rtol=1e-4)
 
 
-@pytest.mark.parametrize("name", ["basic", "two_cameras_sh3", "non_square_odd", "anisotropic", "dense_opaque"])
+@pytest.mark.parametrize(
+    "name", ["basic", "two_cameras_sh3", "non_square_odd", "anisotropic", "dense_opaque"]
+)
 def test_torch_backend_gradients_match_brute_force(name):
     case = make_case(name)
     got = _grads(case, lambda c: _render(c, "torch"))
@@ -109,17 +111,24 @@ def test_projection_and_sh_match_gsplat_pure_torch():
 
     case = make_case("two_cameras_sh3")
     covars = quat_scale_to_covar(case["quats"], case["scales"])
-    ours = project_gaussians(case["means"], covars, case["viewmats"], case["Ks"], case["width"], case["height"])
+    ours = project_gaussians(
+        case["means"], covars, case["viewmats"], case["Ks"], case["width"], case["height"]
+    )
     radii, means2d, depths, conics, _ = _fully_fused_projection(
-        case["means"], covars, case["viewmats"], case["Ks"], case["width"], case["height"])
+        case["means"], covars, case["viewmats"], case["Ks"], case["width"], case["height"]
+    )
     assert torch.equal(ours[0], radii)
-    for a, b in zip(ours[1:], (means2d, depths, conics)):
+    for a, b in zip(ours[1:], (means2d, depths, conics), strict=True):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-5)
     dirs = torch.randn(50, 3)
     coeffs = torch.randn(50, 16, 3)
     for degree in range(4):
-        torch.testing.assert_close(spherical_harmonics(degree, dirs, coeffs),
-                                   _spherical_harmonics(degree, dirs, coeffs), rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(
+            spherical_harmonics(degree, dirs, coeffs),
+            _spherical_harmonics(degree, dirs, coeffs),
+            rtol=1e-5,
+            atol=1e-5,
+        )
 
 
 def test_memory_is_bounded_for_large_images():
@@ -131,8 +140,14 @@ def test_memory_is_bounded_for_large_images():
     means, quats, scales, opac, colors = random_gaussians(50_000, seed=3, spread=1.5, scale=(0.005, 0.03))
     leaves = [t.requires_grad_(True) for t in (means, quats, scales, opac, colors)]
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    img, alpha, _ = rasterization(*leaves, look_at_viewmat((0.0, 0.5, -4.0))[None], intrinsics(256, 256)[None],
-                                  256, 256, backend="torch")
+    img, alpha, _ = rasterization(
+        *leaves,
+        look_at_viewmat((0.0, 0.5, -4.0))[None],
+        intrinsics(256, 256)[None],
+        256,
+        256,
+        backend="torch",
+    )
     img.sum().backward()
     grown_gb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024**2
     assert means.grad is not None and torch.isfinite(means.grad).all()
@@ -148,7 +163,8 @@ def test_alpha_clamp_and_exclusive_termination_hand_computed():
     scales = torch.full((2, 3), 0.1)
     colors = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     for backend in ("torch",):
-        img, alpha, _ = rasterization(means, quats, scales, torch.ones(2), colors, torch.eye(4)[None], K, 40, 30,
-                                      backend=backend)
+        img, alpha, _ = rasterization(
+            means, quats, scales, torch.ones(2), colors, torch.eye(4)[None], K, 40, 30, backend=backend
+        )
         assert float(alpha[0, 15, 20, 0]) == pytest.approx(0.999, abs=1e-6)
         torch.testing.assert_close(img[0, 15, 20], torch.tensor([0.999, 0.0, 0.0]), atol=1e-6, rtol=0)

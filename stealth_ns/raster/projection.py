@@ -106,9 +106,9 @@ def project_gaussians(
     txc = tz * torch.clamp(tx / tz, min=-lim_x_neg, max=lim_x_pos)
     tyc = tz * torch.clamp(ty / tz, min=-lim_y_neg, max=lim_y_pos)
     zero = torch.zeros_like(tz)
-    jac = torch.stack(
-        [fx / tz, zero, -fx * txc / tz**2, zero, fy / tz, -fy * tyc / tz**2], dim=-1
-    ).reshape(tz.shape + (2, 3))
+    jac = torch.stack([fx / tz, zero, -fx * txc / tz**2, zero, fy / tz, -fy * tyc / tz**2], dim=-1).reshape(
+        tz.shape + (2, 3)
+    )
     cov2d = jac @ covars_c @ jac.transpose(-1, -2)
     means2d = torch.stack([fx * tx / tz + cx, fy * ty / tz + cy], dim=-1)
 

@@ -112,7 +112,9 @@ def rasterize_to_pixels_torch(
     alphas_t = 1.0 - trans
     return (
         _tiles_to_image(colors_t, C, tile_height, tile_width, tile_size, image_height, image_width),
-        _tiles_to_image(alphas_t[..., None], C, tile_height, tile_width, tile_size, image_height, image_width),
+        _tiles_to_image(
+            alphas_t[..., None], C, tile_height, tile_width, tile_size, image_height, image_width
+        ),
     )
 
 

@@ -1,0 +1,285 @@
+"""``StealthSplatModel``: splatfacto that also trains on a CPU.
+
+A subclass of nerfstudio's ``SplatfactoModel`` (so the viewer, export and checkpoint code
+keep working) with three changes:
+
+- rendering goes through :func:`stealth_ns.raster.rasterization`, which uses gsplat's CUDA
+  kernels on a CUDA device and a CPU rasterizer otherwise (``rasterizer_backend``);
+- nothing is moved to CUDA unconditionally, and the camera view matrix is computed without
+  ``torch.compile`` (which costs ~13 s on a CPU for one 4x4 inverse);
+- LPIPS is created lazily on first use; when its AlexNet weights cannot be loaded (offline),
+  the reason is logged once and LPIPS is left out of the metrics instead of crashing.
+
+Densification uses gsplat's ``DefaultStrategy`` as splatfacto does. Its "absgrad" (the sum
+of absolute screen-space gradients) is only produced by gsplat's CUDA backward, so on the
+CPU backends the plain gradient is used with its own grow threshold
+(``densify_grad_thresh_cpu``, gsplat's default 2e-4 instead of splatfacto's 8e-4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import torch
+from gsplat.strategy import DefaultStrategy
+from nerfstudio.cameras.camera_optimizers import CameraOptimizer
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.models.splatfacto import (
+    RGB2SH,
+    SplatfactoModel,
+    SplatfactoModelConfig,
+    num_sh_bases,
+    random_quat_tensor,
+)
+from nerfstudio.utils.colors import get_color
+from nerfstudio.utils.rich_utils import CONSOLE
+from pytorch_msssim import SSIM
+from torch import Tensor
+
+from stealth_ns.metrics import LazyLPIPS
+from stealth_ns.raster import rasterization, resolve_backend
+
+
+@dataclass
+class StealthSplatModelConfig(SplatfactoModelConfig):
+    """Splatfacto's options plus the rasterizer backend choice."""
+
+    _target: type = field(default_factory=lambda: StealthSplatModel)
+    rasterizer_backend: Literal["auto", "gsplat", "cpp", "torch"] = "auto"
+    """auto: gsplat's CUDA kernels on a CUDA device, else the compiled CPU kernel, else the
+    pure-PyTorch rasterizer (slow; used with a warning when the compiled one cannot build)."""
+    densify_grad_thresh_cpu: float = 0.0002
+    """Grow threshold on the mean screen-space gradient when absgrad is unavailable (CPU
+    backends); gsplat's default for plain gradients."""
+
+
+def viewmat_from_c2w(camera_to_worlds: Tensor) -> Tensor:
+    """[C, 3, 4] OpenGL camera-to-world -> [C, 4, 4] OpenCV world-to-camera (gsplat's convention)."""
+    rot = camera_to_worlds[:, :3, :3] * torch.tensor([1.0, -1.0, -1.0], device=camera_to_worlds.device)
+    trans = camera_to_worlds[:, :3, 3:4]
+    rot_inv = rot.transpose(1, 2)
+    viewmat = torch.zeros(rot.shape[0], 4, 4, device=rot.device, dtype=rot.dtype)
+    viewmat[:, 3, 3] = 1.0
+    viewmat[:, :3, :3] = rot_inv
+    viewmat[:, :3, 3:4] = -rot_inv @ trans
+    return viewmat
+
+
+class StealthSplatModel(SplatfactoModel):
+    """Gaussian splatting with CUDA (gsplat) and CPU rasterizers; see the module docstring."""
+
+    config: StealthSplatModelConfig
+
+    def populate_modules(self) -> None:
+        # Splatfacto's initialisation, minus the unconditional .cuda() and the eager LPIPS.
+        if self.seed_points is not None and not self.config.random_init:
+            means = torch.nn.Parameter(self.seed_points[0].float())
+        else:
+            means = torch.nn.Parameter(
+                (torch.rand((self.config.num_random, 3)) - 0.5) * self.config.random_scale
+            )
+        n = means.shape[0]
+        if n >= 4:
+            distances, _ = self.k_nearest_sklearn(means.data, 3)
+            avg_dist = torch.from_numpy(distances).mean(dim=-1, keepdim=True).clamp(min=1e-7)
+        else:
+            avg_dist = torch.full((n, 1), 0.01)
+        scales = torch.nn.Parameter(torch.log(avg_dist.repeat(1, 3)))
+        quats = torch.nn.Parameter(random_quat_tensor(n))
+        dim_sh = num_sh_bases(self.config.sh_degree)
+        has_colors = (
+            self.seed_points is not None and not self.config.random_init and self.seed_points[1].shape[0] > 0
+        )
+        if has_colors:
+            rgb = self.seed_points[1].float() / 255.0
+            shs = torch.zeros((n, dim_sh, 3))
+            if self.config.sh_degree > 0:
+                shs[:, 0, :3] = RGB2SH(rgb)
+            else:
+                CONSOLE.log("use color only optimization with sigmoid activation")
+                shs[:, 0, :3] = torch.logit(rgb, eps=1e-10)
+            features_dc = torch.nn.Parameter(shs[:, 0, :])
+            features_rest = torch.nn.Parameter(shs[:, 1:, :])
+        else:
+            features_dc = torch.nn.Parameter(torch.rand(n, 3))
+            features_rest = torch.nn.Parameter(torch.zeros((n, dim_sh - 1, 3)))
+        opacities = torch.nn.Parameter(torch.logit(0.1 * torch.ones(n, 1)))
+        self.gauss_params = torch.nn.ParameterDict(
+            {
+                "means": means,
+                "scales": scales,
+                "quats": quats,
+                "features_dc": features_dc,
+                "features_rest": features_rest,
+                "opacities": opacities,
+            }
+        )
+        self.camera_optimizer: CameraOptimizer = self.config.camera_optimizer.setup(
+            num_cameras=self.num_train_data, device="cpu"
+        )
+
+        from torchmetrics.image import PeakSignalNoiseRatio
+
+        self.psnr = PeakSignalNoiseRatio(data_range=1.0)
+        self.ssim = SSIM(data_range=1.0, size_average=True, channel=3)
+        # Not a submodule: it must not enter checkpoints, and building it may need a download.
+        object.__setattr__(self, "lpips_metric", LazyLPIPS())
+        self.step = 0
+        self.crop_box = None
+        if self.config.background_color == "random":
+            self.background_color = torch.tensor([0.1490, 0.1647, 0.2157])  # viser's background
+        else:
+            self.background_color = get_color(self.config.background_color)
+        if self.config.use_bilateral_grid:
+            from nerfstudio.model_components.lib_bilagrid import BilateralGrid
+
+            self.bil_grids = BilateralGrid(
+                num=self.num_train_data,
+                grid_X=self.config.grid_shape[0],
+                grid_Y=self.config.grid_shape[1],
+                grid_W=self.config.grid_shape[2],
+            )
+
+        self.strategy = DefaultStrategy(
+            prune_opa=self.config.cull_alpha_thresh,
+            grow_grad2d=self.config.densify_grad_thresh,
+            grow_scale3d=self.config.densify_size_thresh,
+            grow_scale2d=self.config.split_screen_size,
+            prune_scale3d=self.config.cull_scale_thresh,
+            prune_scale2d=self.config.cull_screen_size,
+            refine_scale2d_stop_iter=self.config.stop_screen_size_at,
+            refine_start_iter=self.config.warmup_length,
+            refine_stop_iter=self.config.stop_split_at,
+            reset_every=self.config.reset_alpha_every * self.config.refine_every,
+            refine_every=self.config.refine_every,
+            pause_refine_after_reset=self.num_train_data + self.config.refine_every,
+            absgrad=self.config.use_absgrad,
+            revised_opacity=False,
+            verbose=True,
+        )
+        self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
+        self._backend_for_device: dict[str, str] = {}
+
+    # ------------------------------------------------------------------ rendering
+    @property
+    def rasterizer_backend(self) -> str:
+        """Concrete backend for the model's current device; absgrad follows it."""
+        key = str(self.device)
+        if key not in self._backend_for_device:
+            backend = resolve_backend(self.config.rasterizer_backend, self.device)
+            self._backend_for_device[key] = backend
+            uses_absgrad = self.config.use_absgrad and backend == "gsplat"
+            self.strategy.absgrad = uses_absgrad
+            self.strategy.grow_grad2d = (
+                self.config.densify_grad_thresh if uses_absgrad else self.config.densify_grad_thresh_cpu
+            )
+            CONSOLE.log(f"stealth-splat: rasterizer backend '{backend}' on {self.device}")
+        return self._backend_for_device[key]
+
+    def _gaussians_to_render(self) -> dict[str, Tensor]:
+        """Parameters of the Gaussians drawn now (after the viewer's crop box, if any)."""
+        params = {
+            "means": self.means,
+            "quats": self.quats,
+            "scales": self.scales,
+            "features_dc": self.features_dc,
+            "features_rest": self.features_rest,
+            "opacities": self.opacities,
+        }
+        if self.crop_box is not None and not self.training:
+            keep = self.crop_box.within(self.means).squeeze()
+            params = {k: v[keep] for k, v in params.items()}
+        return params
+
+    def get_outputs(self, camera: Cameras) -> dict[str, Tensor | list]:
+        if not isinstance(camera, Cameras):
+            return {}
+        if self.training:
+            assert camera.shape[0] == 1, "Only one camera at a time"
+            c2w = self.camera_optimizer.apply_to_camera(camera)
+        else:
+            c2w = camera.camera_to_worlds
+
+        g = self._gaussians_to_render()
+        if g["means"].shape[0] == 0:
+            return self.get_empty_outputs(
+                int(camera.width.item()), int(camera.height.item()), self.background_color
+            )
+
+        scale_fac = self._get_downscale_factor()
+        camera.rescale_output_resolution(1 / scale_fac)
+        viewmat = viewmat_from_c2w(c2w)
+        K = camera.get_intrinsics_matrices().to(self.device)
+        W, H = int(camera.width.item()), int(camera.height.item())
+        self.last_size = (H, W)
+        camera.rescale_output_resolution(scale_fac)
+
+        render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
+        colors = torch.cat((g["features_dc"][:, None, :], g["features_rest"]), dim=1)
+        if self.config.sh_degree > 0:
+            sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
+        else:
+            colors = torch.sigmoid(colors).squeeze(1)
+            sh_degree = None
+
+        backend = self.rasterizer_backend
+        render, alpha, self.info = rasterization(
+            means=g["means"],
+            quats=g["quats"],
+            scales=torch.exp(g["scales"]),
+            opacities=torch.sigmoid(g["opacities"]).squeeze(-1),
+            colors=colors,
+            viewmats=viewmat,
+            Ks=K,
+            width=W,
+            height=H,
+            packed=False,
+            near_plane=0.01,
+            far_plane=1e10,
+            render_mode=render_mode,
+            sh_degree=sh_degree,
+            absgrad=self.strategy.absgrad,
+            rasterize_mode=self.config.rasterize_mode,
+            backend=backend,
+        )
+        if self.training:
+            self.strategy.step_pre_backward(
+                self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info
+            )
+
+        background = self._get_background_color()
+        rgb = torch.clamp(render[..., :3] + (1 - alpha) * background, 0.0, 1.0)
+        if (
+            self.config.use_bilateral_grid
+            and self.training
+            and camera.metadata
+            and "cam_idx" in camera.metadata
+        ):
+            rgb = self._apply_bilateral_grid(rgb, camera.metadata["cam_idx"], H, W)
+        depth = None
+        if render_mode == "RGB+ED":
+            depth = render[..., 3:4]
+            depth = torch.where(alpha > 0, depth, depth.detach().max()).squeeze(0)
+        if background.shape[0] == 3 and not self.training:
+            background = background.expand(H, W, 3)
+        return {
+            "rgb": rgb.squeeze(0),
+            "depth": depth,
+            "accumulation": alpha.squeeze(0),
+            "background": background,
+        }
+
+    # ------------------------------------------------------------------ metrics
+    def get_image_metrics_and_images(
+        self, outputs: dict[str, Tensor], batch: dict[str, Tensor]
+    ) -> tuple[dict[str, float], dict[str, Tensor]]:
+        gt_rgb = self.composite_with_background(self.get_gt_img(batch["image"]), outputs["background"])
+        pred = outputs["rgb"]
+        gt_b = torch.moveaxis(gt_rgb, -1, 0)[None]
+        pred_b = torch.moveaxis(pred, -1, 0)[None]
+        metrics = {"psnr": float(self.psnr(gt_b, pred_b).item()), "ssim": float(self.ssim(gt_b, pred_b))}
+        lpips = self.lpips_metric(gt_b, pred_b)
+        if lpips is not None:
+            metrics["lpips"] = lpips
+        return metrics, {"img": torch.cat([gt_rgb, pred], dim=1)}
