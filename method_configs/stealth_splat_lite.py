@@ -10,8 +10,8 @@ coarse-to-fine resolution schedule (3000 -> 300 steps per doubling).
 from __future__ import annotations
 
 from nerfstudio.plugins.types import MethodSpecification
-from stealth_ns.method_configs.base import trainer_config
 
+from stealth_ns.method_configs.base import trainer_config
 from stealth_ns.model import StealthSplatModelConfig
 
 LITE_STEPS = 3000

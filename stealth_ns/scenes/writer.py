@@ -1,0 +1,143 @@
+"""Deterministic writers for the nerfstudio-data folder layout.
+
+::
+
+    OUTPUT/
+      transforms.json        intrinsics, frames (poses, image + depth paths), splits, ply path
+      images/frame_00000.png 8-bit RGB
+      depths/frame_00000.npy float32 (H, W) z-depth along the camera's -Z, world units, 0 = sky
+      sparse_pc.ply          binary PLY seed points: float x, y, z; uchar red, green, blue
+      scene.json             preset, seed, resolution, scene centre and radius, ...
+
+The same inputs give byte-identical files: PNGs carry no timestamps, JSON has sorted keys and
+floats rounded to a fixed number of decimals.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+GENERATED = ("images", "depths", "transforms.json", "sparse_pc.ply", "scene.json")
+"""Entries of the output folder that :func:`clear_generated` removes."""
+
+
+def image_path(i: int) -> str:
+    """Relative path of frame ``i``'s image."""
+    return f"images/frame_{i:05d}.png"
+
+
+def depth_path(i: int) -> str:
+    """Relative path of frame ``i``'s depth map."""
+    return f"depths/frame_{i:05d}.npy"
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """Float image in [0, 1] (any shape) to uint8 with rounding."""
+    return np.floor(np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Write an (H, W, 3) float [0, 1] or uint8 RGB image as PNG (no metadata, deterministic)."""
+    arr = image if image.dtype == np.uint8 else to_uint8(image)
+    Image.fromarray(np.ascontiguousarray(arr), mode="RGB").save(path, format="PNG", optimize=False)
+
+
+def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray) -> None:
+    """Write points ``xyz`` (N, 3) world units with colours ``rgb`` (N, 3) float [0, 1] as binary
+    little-endian PLY (float32 position, uchar colour), readable by open3d."""
+    n = xyz.shape[0]
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment stealth-ns procedural seed points\n"
+        f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+    )
+    rec = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
+    rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    col = to_uint8(rgb)
+    rec["r"], rec["g"], rec["b"] = col[:, 0], col[:, 1], col[:, 2]
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(rec.tobytes())
+
+
+def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a PLY written by :func:`write_ply`: xyz (N, 3) float32 and rgb (N, 3) uint8."""
+    data = Path(path).read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    n = int(
+        next(ln for ln in data[:end].decode().splitlines() if ln.startswith("element vertex")).split()[-1]
+    )
+    rec = np.frombuffer(data[end:], dtype=[("p", "<f4", 3), ("c", "u1", 3)], count=n)
+    return rec["p"].copy(), rec["c"].copy()
+
+
+def round_floats(obj, decimals: int = 8):
+    """Recursively round floats (and numpy scalars/arrays) in ``obj`` to ``decimals`` places."""
+    if isinstance(obj, dict):
+        return {k: round_floats(v, decimals) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [round_floats(v, decimals) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return round_floats(obj.tolist(), decimals)
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = round(float(obj), decimals)
+        return 0.0 if v == 0 else v  # no "-0.0"
+    return obj
+
+
+def write_json(path: Path, obj: dict) -> None:
+    """Write ``obj`` as indented JSON with sorted keys and rounded floats."""
+    text = json.dumps(round_floats(obj), indent=2, sort_keys=True)
+    Path(path).write_text(text + "\n", encoding="utf-8")
+
+
+def clear_generated(output: Path) -> None:
+    """Remove the entries this package writes (:data:`GENERATED`) from ``output``; others stay."""
+    for name in GENERATED:
+        p = output / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+
+
+def transforms_dict(
+    intr, c2w: np.ndarray, train: list[int], test: list[int], with_depth: bool = True
+) -> dict:
+    """The ``transforms.json`` content for poses ``c2w`` (V, 4, 4) and intrinsics ``intr``
+    (:class:`~stealth_ns.scenes.render.Intrinsics`); ``val_filenames`` equals ``test_filenames``
+    (nerfstudio's datamanagers ask for split "val" during training)."""
+    frames = []
+    for i, m in enumerate(c2w):
+        frame = {"file_path": image_path(i), "transform_matrix": m}
+        if with_depth:
+            frame["depth_file_path"] = depth_path(i)
+        frames.append(frame)
+    test_names = [image_path(i) for i in test]
+    return {
+        "camera_model": "OPENCV",
+        "fl_x": intr.fl_x,
+        "fl_y": intr.fl_y,
+        "cx": intr.cx,
+        "cy": intr.cy,
+        "w": intr.width,
+        "h": intr.height,
+        "k1": 0.0,
+        "k2": 0.0,
+        "p1": 0.0,
+        "p2": 0.0,
+        "frames": frames,
+        "train_filenames": [image_path(i) for i in train],
+        "val_filenames": test_names,
+        "test_filenames": test_names,
+        "ply_file_path": "sparse_pc.ply",
+    }
