@@ -47,10 +47,28 @@ class MakeScene:
         print(summary)
 
 
+@dataclass
+class Demo:
+    """Generate the orbit scene, train stealth-splat-lite on it, evaluate, and print the numbers."""
+
+    output: Path = Path("demo-output")
+    """Folder for the scene, the runs and the logs."""
+    iterations: int | None = None
+    """Training iterations (default: the method's 3000)."""
+    seed: int = 0
+    """Scene and training seed."""
+
+    def main(self) -> None:
+        from stealth_ns.demo import run_demo
+
+        print(run_demo(self.output, self.iterations, self.seed))
+
+
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
 # tyro union) so that every command, nested ones included, gets its own --help.
 COMMANDS: dict[str, type] = {
     "make-scene": MakeScene,
+    "demo": Demo,
 }
 
 
