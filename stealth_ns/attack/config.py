@@ -1,0 +1,88 @@
+"""The attack's configuration: everything a user sets, in one place (``--pipeline.attack.*``).
+
+Defaults come from the paper (StealthAttack, ICCV 2025, §3-4) and, where the paper is
+silent, from the authors' code (see ``docs/attack.md``).
+
+Units: nerfstudio's dataparsers recentre the cameras and scale them into [-1, 1]³
+(``auto_scale_poses``), so every distance here (``t_min``, ``voxel_size``) is in those
+rescaled scene units. For an inward-facing capture the cameras then sit about 1 unit from
+the scene centre; the paper's ``t_min = 0.3`` was in COLMAP units of Mip-NeRF 360 scenes,
+where cameras sit a few units away, and means "not right in front of the lens, where 3DGS
+makes floaters".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from nerfstudio.configs.base_config import PrintableConfig
+
+
+@dataclass
+class AttackConfig(PrintableConfig):
+    """StealthAttack settings (illusion, poisoned views, components, KDE, injection, noise)."""
+
+    enabled: bool = True
+    """False trains the same pipeline without any attack (the clean baseline)."""
+
+    # --- the illusion --------------------------------------------------------------------
+    illusion: str = "astronaut"
+    """A built-in object name (see ``stealth-ns illusions``) or the path of an RGBA PNG (alpha = mask)
+    or of an RGB image used with ``illusion_mask``."""
+    illusion_mask: Path | None = None
+    """Mask image for an RGB illusion (pixels > 0.5 after normalising are the object)."""
+    illusion_center: tuple[float, float] = (0.5, 0.5)
+    """Where the illusion's centre sits in the poisoned view, as fractions of (width, height)."""
+    illusion_scale: float = 0.4
+    """Illusion height as a fraction of the poisoned view's height (aspect kept)."""
+
+    # --- poisoned views ------------------------------------------------------------------
+    views: tuple[str, ...] = ()
+    """Poisoned training views by index or image name; empty = the median training frame."""
+    multi_view: int = 1
+    """1..4 poisoned views at 0°, 90°, 180°, 270° about the scene's up axis from the first
+    poisoned view (the paper's multi-view attack); each the nearest training view."""
+
+    # --- components (the paper's Table 6 ablation) -----------------------------------------
+    gt_replacement: bool = True
+    """Replace the poisoned view's training image with the illusion composite I_ILL."""
+    density_guided: bool = True
+    """Inject one poison Gaussian per illusion pixel at the minimum-density point of its ray."""
+    view_noise: bool = True
+    """View-consistency disruption: Gaussian noise with a decaying sigma on innocent views."""
+
+    # --- density and KDE (§3.3) --------------------------------------------------------------
+    voxel_size: float | None = None
+    """Voxel edge in scene units; None = the AABB's longest side / ``grid_resolution``."""
+    grid_resolution: int = 160
+    """Voxels along the longest AABB side when ``voxel_size`` is None."""
+    bandwidth: float = 7.5
+    """KDE bandwidth h in voxels (paper's default 7.5; its ablation varies 0.1..10)."""
+    outlier_removal: bool = True
+    """Statistical outlier removal (20 neighbours, 2 std) before the AABB, as the authors did."""
+    t_min: float = 0.3
+    """Nearest distance along a ray (scene units) where a poison Gaussian may go."""
+    samples_per_ray: int = 1024
+    """Samples between t_min and the rendered depth (the authors: 8192, nearest voxel)."""
+    tie_break: Literal["nearest-surface", "first", "middle"] = "nearest-surface"
+    """Among equally empty samples: nearest the surface (default), nearest the camera (the
+    authors' argmin), or the middle of the first minimal run."""
+
+    # --- injection ---------------------------------------------------------------------------
+    injection_step: int | None = None
+    """Training step of the injection; None = end of the model's warm-up (after the initial
+    reconstruction); 0 = into the seed points before training, as the authors' code did."""
+    poison_opacity: float = 0.1
+    """Initial opacity of poison Gaussians (splatfacto's initial opacity)."""
+    poison_scale: float = 0.5
+    """Poison Gaussian std-dev in pixel footprints at its depth (depth / focal length)."""
+
+    # --- view-consistency noise (§3.4) ---------------------------------------------------------
+    noise_sigma0: float = 100.0
+    """Initial noise std-dev on the 0-255 scale (paper: 30 or 100; 100 is the default)."""
+    noise_decay: Literal["linear", "cosine", "sqrt"] = "linear"
+    """How sigma decays to 0 over the training run."""
+    seed: int = 0
+    """Seed of the noise (deterministic per seed, view and step)."""
