@@ -7,10 +7,10 @@ from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.engine.trainer import TrainerConfig
-from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 
 from stealth_ns.datamanager import StealthDataManagerConfig
 from stealth_ns.model import StealthSplatModelConfig
+from stealth_ns.pipeline import StealthPipelineConfig
 from stealth_ns.schedulers import FloatExponentialDecaySchedulerConfig
 
 
@@ -64,7 +64,7 @@ def trainer_config(
         max_num_iterations=max_steps,
         mixed_precision=False,
         machine=MachineConfig(device_type=default_device_type()),
-        pipeline=VanillaPipelineConfig(
+        pipeline=StealthPipelineConfig(
             datamanager=StealthDataManagerConfig(
                 dataparser=NerfstudioDataParserConfig(load_3D_points=True),
                 cache_images_type="uint8",

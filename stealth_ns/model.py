@@ -54,6 +54,17 @@ class StealthSplatModelConfig(SplatfactoModelConfig):
     backends); gsplat's default for plain gradients."""
 
 
+POISON_TAG = "poison"
+"""Name of the per-Gaussian tag (1.0 = poison, 0.0 = scene) kept in ``gauss_params``: gsplat's
+strategy duplicates, splits and prunes it with the other rows, and it is saved in checkpoints."""
+
+RenderFilter = Literal["all", "hide_poison", "only_poison"]
+
+
+def _tag_parameter(values: Tensor) -> torch.nn.Parameter:
+    return torch.nn.Parameter(values.float(), requires_grad=False)
+
+
 def viewmat_from_c2w(camera_to_worlds: Tensor) -> Tensor:
     """[C, 3, 4] OpenGL camera-to-world -> [C, 4, 4] OpenCV world-to-camera (gsplat's convention)."""
     rot = camera_to_worlds[:, :3, :3] * torch.tensor([1.0, -1.0, -1.0], device=camera_to_worlds.device)
@@ -113,8 +124,11 @@ class StealthSplatModel(SplatfactoModel):
                 "features_dc": features_dc,
                 "features_rest": features_rest,
                 "opacities": opacities,
+                POISON_TAG: _tag_parameter(torch.zeros(n)),
             }
         )
+        self._tag_optimizer: torch.optim.Optimizer | None = None
+        self.render_filter: RenderFilter = "all"
         self.camera_optimizer: CameraOptimizer = self.config.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -161,6 +175,34 @@ class StealthSplatModel(SplatfactoModel):
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
         self._backend_for_device: dict[str, str] = {}
 
+    # ------------------------------------------------------------------ poison tag
+    @property
+    def poison_mask(self) -> Tensor:
+        """[N] bool: which Gaussians are poison."""
+        return self.gauss_params[POISON_TAG] > 0.5
+
+    def step_cb(self, optimizers, step: int) -> None:
+        """Splatfacto's before-iteration callback, plus an optimizer entry for the poison tag.
+
+        gsplat's strategy edits every ``gauss_params`` entry through its optimizer; the tag is
+        never trained, so it gets a zero-learning-rate optimizer that nerfstudio never sees.
+        """
+        super().step_cb(optimizers, step)
+        tag = self.gauss_params[POISON_TAG]
+        tag.requires_grad_(False)  # gsplat's ops re-wrap rows as trainable Parameters
+        if self._tag_optimizer is None or self._tag_optimizer.param_groups[0]["params"][0] is not tag:
+            self._tag_optimizer = torch.optim.Adam([tag], lr=0.0)
+        self.optimizers = {**self.optimizers, POISON_TAG: self._tag_optimizer}
+
+    def load_state_dict(self, state_dict, **kwargs):  # type: ignore[override]
+        key = f"gauss_params.{POISON_TAG}"
+        if key not in state_dict and "gauss_params.means" in state_dict:  # checkpoint from before the tag
+            state_dict[key] = torch.zeros(state_dict["gauss_params.means"].shape[0])
+        result = super().load_state_dict(state_dict, **kwargs)
+        self.gauss_params[POISON_TAG] = _tag_parameter(self.gauss_params[POISON_TAG].data)
+        self._tag_optimizer = None
+        return result
+
     # ------------------------------------------------------------------ rendering
     @property
     def rasterizer_backend(self) -> str:
@@ -178,7 +220,8 @@ class StealthSplatModel(SplatfactoModel):
         return self._backend_for_device[key]
 
     def _gaussians_to_render(self) -> dict[str, Tensor]:
-        """Parameters of the Gaussians drawn now (after the viewer's crop box, if any)."""
+        """Parameters of the Gaussians drawn now: after the viewer's crop box and, outside
+        training, ``render_filter`` (all / hide_poison / only_poison)."""
         params = {
             "means": self.means,
             "quats": self.quats,
@@ -187,8 +230,14 @@ class StealthSplatModel(SplatfactoModel):
             "features_rest": self.features_rest,
             "opacities": self.opacities,
         }
+        keep = None
         if self.crop_box is not None and not self.training:
-            keep = self.crop_box.within(self.means).squeeze()
+            keep = self.crop_box.within(self.means).squeeze(-1)
+        if self.render_filter != "all" and not self.training:
+            poison = self.poison_mask
+            chosen = poison if self.render_filter == "only_poison" else ~poison
+            keep = chosen if keep is None else keep & chosen
+        if keep is not None:
             params = {k: v[keep] for k, v in params.items()}
         return params
 

@@ -1,0 +1,182 @@
+"""Density-guided injection of poison Gaussians (paper §3.3), on top of the pure functions.
+
+``place_poison`` turns the current Gaussians plus the poisoned views into new Gaussians:
+opacity-weighted voxel density -> KDE -> for every illusion pixel, the least dense point on
+its ray between ``t_min`` and the rendered depth. ``append_gaussians`` then grows the
+model's parameters, their Adam state and gsplat's densification state together.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from stealth_ns.attack.config import AttackConfig
+from stealth_ns.attack.density import DensityGrid, gaussian_kde_grid, voxel_density
+from stealth_ns.attack.ray_search import min_density_points, pixel_rays, zdepth_to_ray_t
+
+# Pixels whose rendered opacity is below this see no reconstructed surface (sky, empty
+# background): their ray is searched up to where it leaves the density grid instead.
+SURFACE_ALPHA = 0.5
+
+
+@dataclass
+class PoisonView:
+    """One poisoned training view: camera, illusion mask and target colours."""
+
+    index: int
+    name: str
+    c2w: Tensor  # [3, 4] OpenGL camera-to-world
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    mask: Tensor  # [H, W] bool, illusion pixels
+    target: Tensor  # [H, W, 3] float in [0, 1], the illusion composite I_ILL
+
+
+@dataclass
+class PoisonPlacement:
+    """New Gaussians (world units) and what was measured while placing them."""
+
+    means: Tensor  # [M, 3]
+    colors: Tensor  # [M, 3] RGB in [0, 1]
+    scales: Tensor  # [M] std-dev in world units
+    per_view: dict[str, int] = field(default_factory=dict)  # view name -> Gaussians placed
+    invalid_rays: dict[str, int] = field(default_factory=dict)  # view name -> rays with t_max < t_min
+    grid: DensityGrid | None = None
+    kde: DensityGrid | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def remove_outliers(points: np.ndarray, neighbours: int = 20, std_ratio: float = 2.0) -> np.ndarray:
+    """[N] bool inliers by open3d's statistical outlier removal (the authors' setting)."""
+    import open3d as o3d
+
+    if len(points) <= neighbours:
+        return np.ones(len(points), dtype=bool)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    _, kept = cloud.remove_statistical_outlier(nb_neighbors=neighbours, std_ratio=std_ratio)
+    inliers = np.zeros(len(points), dtype=bool)
+    inliers[np.asarray(kept, dtype=np.int64)] = True
+    return inliers
+
+
+def ray_exit_distance(origins: Tensor, directions: Tensor, lower: Tensor, upper: Tensor) -> Tensor:
+    """[M] distance along each ray to where it leaves the box [lower, upper] (0 if it never is inside)."""
+    inv = 1.0 / directions  # +-inf on axis-parallel rays; the slab max/min handles them
+    t1 = torch.nan_to_num((lower - origins) * inv, nan=float("inf"))
+    t2 = torch.nan_to_num((upper - origins) * inv, nan=float("inf"))
+    return torch.maximum(t1, t2).amin(-1).clamp(min=0.0)
+
+
+def build_density(
+    means: np.ndarray, opacities: np.ndarray, cfg: AttackConfig
+) -> tuple[DensityGrid, DensityGrid]:
+    """Voxel density of the current Gaussians and its KDE (normalised to max 1)."""
+    keep = remove_outliers(means) if cfg.outlier_removal else np.ones(len(means), dtype=bool)
+    if cfg.voxel_size is not None:
+        grid = voxel_density(means[keep], opacities[keep], voxel_size=cfg.voxel_size)
+    else:
+        grid = voxel_density(means[keep], opacities[keep], resolution=cfg.grid_resolution)
+    return grid, gaussian_kde_grid(grid, cfg.bandwidth)
+
+
+def place_poison(
+    means: np.ndarray,
+    opacities: np.ndarray,
+    views: list[PoisonView],
+    depths: list[Tensor],
+    alphas: list[Tensor],
+    cfg: AttackConfig,
+) -> PoisonPlacement:
+    """Poison Gaussians for every illusion pixel of every poisoned view.
+
+    Args:
+        means: [N, 3] current Gaussian centres (scene units); opacities: [N] in [0, 1].
+        views: the poisoned views.
+        depths: per view, [H, W] rendered z-depth of the current model (scene units).
+        alphas: per view, [H, W] rendered opacity (accumulation).
+        cfg: the attack config (KDE, t_min, samples, tie-break, poison scale).
+    """
+    t0 = time.perf_counter()
+    grid, kde = build_density(means, opacities, cfg)
+    timings = {"density_kde_s": time.perf_counter() - t0}
+    lower = torch.as_tensor(grid.origin, dtype=torch.float32)
+    upper = torch.as_tensor(grid.upper, dtype=torch.float32)
+    out_means, out_colors, out_scales = [], [], []
+    per_view, invalid = {}, {}
+    t1 = time.perf_counter()
+    for view, depth, alpha in zip(views, depths, alphas, strict=True):
+        rows, cols = torch.nonzero(view.mask, as_tuple=True)
+        pixels = torch.stack([cols, rows], dim=-1)
+        rays = pixel_rays(view.c2w, view.fx, view.fy, view.cx, view.cy, pixels)
+        origins = torch.as_tensor(rays.origins, dtype=torch.float32)
+        dirs = torch.as_tensor(rays.directions, dtype=torch.float32)
+        cos = torch.as_tensor(rays.cos_theta, dtype=torch.float32)
+        t_surface = torch.as_tensor(zdepth_to_ray_t(depth[rows, cols].float(), cos))
+        t_exit = ray_exit_distance(origins, dirs, lower, upper)
+        t_max = torch.where(alpha[rows, cols] >= SURFACE_ALPHA, t_surface, t_exit)
+        found = min_density_points(
+            kde, origins, dirs, cfg.t_min, t_max, n_samples=cfg.samples_per_ray, tie_break=cfg.tie_break
+        )
+        valid = torch.as_tensor(found.valid)
+        pts = torch.as_tensor(found.points)[valid]
+        t = torch.as_tensor(found.t)[valid]
+        zdepth = t * cos[valid]
+        out_means.append(pts)
+        out_colors.append(view.target[rows[valid], cols[valid]].float())
+        out_scales.append(cfg.poison_scale * zdepth / math.sqrt(view.fx * view.fy))
+        per_view[view.name] = int(valid.sum())
+        invalid[view.name] = int((~valid).sum())
+    timings["ray_search_s"] = time.perf_counter() - t1
+    return PoisonPlacement(
+        means=torch.cat(out_means) if out_means else torch.zeros(0, 3),
+        colors=torch.cat(out_colors) if out_colors else torch.zeros(0, 3),
+        scales=torch.cat(out_scales) if out_scales else torch.zeros(0),
+        per_view=per_view,
+        invalid_rays=invalid,
+        grid=grid,
+        kde=kde,
+        timings=timings,
+    )
+
+
+@torch.no_grad()
+def append_gaussians(
+    params: torch.nn.ParameterDict,
+    optimizers: dict[str, torch.optim.Optimizer],
+    strategy_state: dict,
+    rows: dict[str, Tensor],
+) -> None:
+    """Append Gaussians to every per-Gaussian tensor, keeping the training state consistent.
+
+    Args:
+        params: the model's ``gauss_params`` (every entry [N, ...]).
+        optimizers: one optimizer per ``params`` entry (gsplat's strategy contract).
+        strategy_state: gsplat ``DefaultStrategy`` state; its [N] tensors get zero rows.
+        rows: new values for every ``params`` entry, each [M, ...].
+    """
+    from gsplat.strategy.ops import _update_param_with_optimizer
+
+    if set(rows) != set(params.keys()):
+        raise ValueError(f"new rows for {sorted(rows)} but the model has {sorted(params.keys())}")
+    n_old = params["means"].shape[0]
+    n_new = rows["means"].shape[0]
+
+    def param_fn(name: str, p: Tensor) -> torch.nn.Parameter:
+        return torch.nn.Parameter(torch.cat([p, rows[name].to(p)]), requires_grad=p.requires_grad)
+
+    def optimizer_fn(key: str, v: Tensor) -> Tensor:
+        return torch.cat([v, torch.zeros((n_new, *v.shape[1:]), device=v.device, dtype=v.dtype)])
+
+    _update_param_with_optimizer(param_fn, optimizer_fn, params, optimizers)
+    for key, value in strategy_state.items():
+        if isinstance(value, Tensor) and value.dim() > 0 and value.shape[0] == n_old:
+            pad = torch.zeros((n_new, *value.shape[1:]), device=value.device, dtype=value.dtype)
+            strategy_state[key] = torch.cat([value, pad])

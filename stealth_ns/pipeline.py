@@ -1,0 +1,292 @@
+"""``StealthPipeline``: nerfstudio's VanillaPipeline with the attack built in.
+
+At construction it resolves the attack (poisoned views, illusion placement, targets) and
+fails with a one-line error on bad input before any training starts. When training starts
+(``get_training_callbacks``) it hands the datamanager the poisoned targets and the noise
+schedule, writes the attack's artifacts, and registers the density-guided injection.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
+from nerfstudio.models.splatfacto import RGB2SH, num_sh_bases
+from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from stealth_ns.attack.config import AttackConfig
+from stealth_ns.attack.illusion import (
+    BUILTIN_ILLUSIONS,
+    builtin_illusion,
+    composite,
+    load_illusion,
+    place_illusion,
+    save_png,
+)
+from stealth_ns.attack.injection import PoisonPlacement, PoisonView, append_gaussians, place_poison
+from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
+from stealth_ns.datamanager import NoiseSpec, StealthDataManager
+from stealth_ns.errors import StealthNSError
+from stealth_ns.model import POISON_TAG, StealthSplatModel
+
+
+@dataclass
+class StealthPipelineConfig(VanillaPipelineConfig):
+    """Datamanager, model, and the attack (``--pipeline.attack.*``)."""
+
+    _target: type = field(default_factory=lambda: StealthPipeline)
+    attack: AttackConfig = field(default_factory=AttackConfig)
+    """StealthAttack settings."""
+
+
+def fail(err: StealthNSError | str) -> None:
+    """Stop ns-train / ns-eval with a one-line message (no traceback)."""
+    raise SystemExit(f"stealth-ns: error: {err}")
+
+
+def build_poison_views(cfg: AttackConfig, datamanager: StealthDataManager) -> list[PoisonView]:
+    """Resolve the poisoned views and their illusion targets; StealthNSError on bad input."""
+    names = datamanager.train_image_names
+    if cfg.multi_view not in (1, 2, 3, 4):
+        raise StealthNSError(f"--pipeline.attack.multi-view must be 1..4, got {cfg.multi_view}")
+    base = resolve_views(list(cfg.views), names) if cfg.views else [median_view(len(names))]
+    cameras = datamanager.train_dataset.cameras
+    if cfg.multi_view > 1:
+        if len(base) != 1:
+            raise StealthNSError(
+                "--pipeline.attack.multi-view places views around ONE base view; give one view"
+            )
+        base = multi_view_indices(cameras.camera_to_worlds, cfg.multi_view, base=base[0])
+    illusion = (
+        builtin_illusion(cfg.illusion)
+        if cfg.illusion in BUILTIN_ILLUSIONS
+        else load_illusion(Path(cfg.illusion), cfg.illusion_mask)
+        if Path(cfg.illusion).suffix
+        else None
+    )
+    if illusion is None:
+        raise StealthNSError(
+            f"illusion {cfg.illusion!r} is neither a built-in ({', '.join(BUILTIN_ILLUSIONS)}) nor an image path"
+        )
+    views = []
+    for index in base:
+        image = datamanager.cached_train[index]["image"]
+        height, width = image.shape[:2]
+        rgb, alpha = place_illusion(illusion, (height, width), cfg.illusion_center, cfg.illusion_scale)
+        clean = image[..., :3].float() / 255.0 if image.dtype == torch.uint8 else image[..., :3].float()
+        target = composite(clean, torch.as_tensor(rgb), torch.as_tensor(alpha))
+        cam = cameras[index]
+        views.append(
+            PoisonView(
+                index=index,
+                name=names[index],
+                c2w=cam.camera_to_worlds.float(),
+                fx=float(cam.fx),
+                fy=float(cam.fy),
+                cx=float(cam.cx),
+                cy=float(cam.cy),
+                mask=torch.as_tensor(alpha) > 0.5,
+                target=target,
+            )
+        )
+    return views
+
+
+def _target_image(view: PoisonView, clean: torch.Tensor) -> torch.Tensor:
+    """The poisoned view's training image in the cache's dtype/channels (RGBA keeps its alpha)."""
+    rgb = view.target
+    if clean.dtype == torch.uint8:
+        rgb = (rgb * 255.0).round().clamp(0, 255).to(torch.uint8)
+    if clean.shape[-1] == 4:  # images with alpha (blender): the illusion is opaque where its mask is
+        a = clean[..., 3:].clone()
+        a[view.mask] = 255 if clean.dtype == torch.uint8 else 1.0
+        rgb = torch.cat([rgb, a], -1)
+    return rgb
+
+
+class StealthPipeline(VanillaPipeline):
+    """VanillaPipeline + StealthAttack (see the module docstring)."""
+
+    config: StealthPipelineConfig
+    model: StealthSplatModel
+    datamanager: StealthDataManager
+
+    def __init__(self, config: StealthPipelineConfig, device: str, *args: Any, **kwargs: Any) -> None:
+        super().__init__(config, device, *args, **kwargs)
+        self.poison_views: list[PoisonView] = []
+        self.attack_dir: Path | None = None
+        self.attack_record: dict[str, Any] = {}
+        cfg = config.attack
+        if not cfg.enabled or self.test_mode == "inference":
+            return
+        if not isinstance(self.datamanager, StealthDataManager) or not isinstance(
+            self.model, StealthSplatModel
+        ):
+            fail("the attack needs stealth-ns' datamanager and model (use the stealth-splat methods)")
+        try:
+            self.poison_views = build_poison_views(cfg, self.datamanager)
+        except StealthNSError as err:
+            fail(err)
+        if not any(bool(v.mask.any()) for v in self.poison_views):
+            fail("the illusion mask is empty in every poisoned view")
+
+    # ------------------------------------------------------------------ training set-up
+    @property
+    def injection_step(self) -> int:
+        step = self.config.attack.injection_step
+        return self.model.config.warmup_length if step is None else step
+
+    def get_training_callbacks(self, attrs: TrainingCallbackAttributes) -> list[TrainingCallback]:
+        callbacks = super().get_training_callbacks(attrs)
+        cfg = self.config.attack
+        if not cfg.enabled or not self.poison_views:
+            return callbacks
+        max_steps = attrs.trainer.config.max_num_iterations if attrs.trainer is not None else 30_000
+        targets = {}
+        if cfg.gt_replacement:
+            for v in self.poison_views:
+                targets[v.index] = _target_image(v, self.datamanager.cached_train[v.index]["image"])
+        noise = NoiseSpec(cfg.noise_sigma0, cfg.noise_decay, max_steps, cfg.seed) if cfg.view_noise else None
+        self.datamanager.set_poison(targets, noise)
+        if attrs.trainer is not None:
+            self.attack_dir = Path(attrs.trainer.base_dir) / "attack"
+        self.attack_record = {
+            "config": _jsonable(dataclasses.asdict(cfg)),
+            "poisoned_views": [
+                {"index": v.index, "name": v.name, "mask_pixels": int(v.mask.sum())}
+                for v in self.poison_views
+            ],
+            "injection_step": self.injection_step if cfg.density_guided else None,
+            "noise": None if noise is None else _jsonable(dataclasses.asdict(noise)),
+            "n_poison_gaussians": 0,
+        }
+        self._write_view_artifacts()
+        if cfg.density_guided:
+            if self.injection_step >= max_steps:
+                CONSOLE.print(
+                    f"[yellow]stealth-ns: injection step {self.injection_step} is after the last step ({max_steps}); "
+                    "no poison Gaussians will be injected"
+                )
+            callbacks.append(
+                TrainingCallback(
+                    where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION],
+                    func=self.inject_poison,
+                    iters=(self.injection_step,),
+                )
+            )
+        return callbacks
+
+    # ------------------------------------------------------------------ injection
+    @torch.no_grad()
+    def render_depths(self) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        """Rendered z-depth [H, W] and opacity [H, W] of the current model at every poisoned view."""
+        cameras = self.datamanager.train_dataset.cameras
+        was_training = self.model.training
+        self.model.eval()
+        depths, alphas = [], []
+        for v in self.poison_views:
+            out = self.model.get_outputs(cameras[v.index : v.index + 1].to(self.device))
+            depths.append(out["depth"][..., 0].float().cpu())
+            alphas.append(out["accumulation"][..., 0].float().cpu())
+        self.model.train(was_training)
+        return depths, alphas
+
+    @torch.no_grad()
+    def inject_poison(self, step: int) -> PoisonPlacement:
+        """Pipeline callback: place and append one poison Gaussian per illusion pixel."""
+        t0 = time.perf_counter()
+        cfg = self.config.attack
+        model = self.model
+        depths, alphas = self.render_depths()
+        means = model.means.detach().cpu().numpy()
+        opacities = torch.sigmoid(model.opacities.detach()).squeeze(-1).cpu().numpy()
+        placement = place_poison(means, opacities, self.poison_views, depths, alphas, cfg)
+        n_new = placement.means.shape[0]
+        if n_new == 0:
+            fail(
+                f"t_max < t_min for every illusion pixel at step {step}: the rendered surface is nearer than "
+                f"t_min={cfg.t_min}; lower --pipeline.attack.t-min"
+            )
+        device = model.means.device
+        dim_sh = num_sh_bases(model.config.sh_degree)
+        colors = placement.colors.clamp(0.0, 1.0)
+        features_dc = RGB2SH(colors) if model.config.sh_degree > 0 else torch.logit(colors, eps=1e-4)
+        rows = {
+            "means": placement.means,
+            "scales": torch.log(placement.scales.clamp(min=1e-7))[:, None].repeat(1, 3),
+            "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n_new, 1),
+            "features_dc": features_dc,
+            "features_rest": torch.zeros(n_new, dim_sh - 1, 3),
+            "opacities": torch.full((n_new, 1), math.log(cfg.poison_opacity / (1 - cfg.poison_opacity))),
+            POISON_TAG: torch.ones(n_new),
+        }
+        rows = {k: v.to(device) for k, v in rows.items()}
+        n_before = model.num_points
+        append_gaussians(model.gauss_params, model.optimizers, model.strategy_state, rows)
+        placement.timings["total_s"] = time.perf_counter() - t0
+        self.attack_record.update(
+            {
+                "injected_at_step": step,
+                "n_gaussians_before": n_before,
+                "n_poison_gaussians": n_new,
+                "poison_per_view": placement.per_view,
+                "invalid_rays_per_view": placement.invalid_rays,
+                "density_grid": {
+                    "shape": list(placement.grid.shape),
+                    "voxel_size": placement.grid.voxel_size,
+                    "origin": [float(x) for x in placement.grid.origin],
+                },
+                "timings_s": placement.timings,
+            }
+        )
+        self._write_injection_artifacts(placement)
+        CONSOLE.log(
+            f"stealth-ns: injected {n_new} poison Gaussians at step {step} "
+            f"({n_before} -> {model.num_points}; {placement.timings['total_s']:.1f} s)"
+        )
+        return placement
+
+    # ------------------------------------------------------------------ artifacts
+    def _write_view_artifacts(self) -> None:
+        if self.attack_dir is None:
+            return
+        self.attack_dir.mkdir(parents=True, exist_ok=True)
+        for v in self.poison_views:
+            stem = f"view{v.index:04d}"
+            save_png(self.attack_dir / f"{stem}_target.png", v.target.numpy())
+            save_png(self.attack_dir / f"{stem}_mask.png", v.mask.numpy().astype(np.float32))
+        self._write_record()
+
+    def _write_injection_artifacts(self, placement: PoisonPlacement) -> None:
+        if self.attack_dir is None:
+            return
+        import open3d as o3d
+
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(placement.means.double().numpy()))
+        cloud.colors = o3d.utility.Vector3dVector(placement.colors.clamp(0, 1).double().numpy())
+        o3d.io.write_point_cloud(str(self.attack_dir / "poison_points.ply"), cloud)
+        placement.grid.save_npz(self.attack_dir / "density_grid.npz", extras={"kde": placement.kde.values})
+        self._write_record()
+
+    def _write_record(self) -> None:
+        assert self.attack_dir is not None
+        (self.attack_dir / "attack.json").write_text(json.dumps(self.attack_record, indent=2, sort_keys=True))
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
