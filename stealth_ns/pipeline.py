@@ -53,6 +53,19 @@ def fail(err: StealthNSError | str) -> None:
     raise SystemExit(f"stealth-ns: error: {err}")
 
 
+def resolve_illusion(cfg: AttackConfig) -> Illusion:
+    """The configured illusion: a built-in name or an image path (+ optional mask)."""
+    if cfg.illusion in BUILTIN_ILLUSIONS:
+        return builtin_illusion(cfg.illusion)
+    path = Path(cfg.illusion)
+    if not path.suffix and not path.exists():
+        builtins = ", ".join(BUILTIN_ILLUSIONS)
+        raise StealthNSError(
+            f"unknown illusion {cfg.illusion!r}: use a built-in ({builtins}) or an image path"
+        )
+    return load_illusion(path, cfg.illusion_mask)
+
+
 def build_poison_views(cfg: AttackConfig, datamanager: StealthDataManager) -> list[PoisonView]:
     """Resolve the poisoned views and their illusion targets; StealthNSError on bad input."""
     names = datamanager.train_image_names
@@ -66,17 +79,7 @@ def build_poison_views(cfg: AttackConfig, datamanager: StealthDataManager) -> li
                 "--pipeline.attack.multi-view places views around ONE base view; give one view"
             )
         base = multi_view_indices(cameras.camera_to_worlds, cfg.multi_view, base=base[0])
-    illusion = (
-        builtin_illusion(cfg.illusion)
-        if cfg.illusion in BUILTIN_ILLUSIONS
-        else load_illusion(Path(cfg.illusion), cfg.illusion_mask)
-        if Path(cfg.illusion).suffix
-        else None
-    )
-    if illusion is None:
-        raise StealthNSError(
-            f"illusion {cfg.illusion!r} is neither a built-in ({', '.join(BUILTIN_ILLUSIONS)}) nor an image path"
-        )
+    illusion = resolve_illusion(cfg)
     views = []
     for index in base:
         image = datamanager.cached_train[index]["image"]
@@ -173,8 +176,8 @@ class StealthPipeline(VanillaPipeline):
         if cfg.density_guided:
             if self.injection_step >= max_steps:
                 CONSOLE.print(
-                    f"[yellow]stealth-ns: injection step {self.injection_step} is after the last step ({max_steps}); "
-                    "no poison Gaussians will be injected"
+                    f"[yellow]stealth-ns: injection step {self.injection_step} is after the last step "
+                    f"({max_steps}); no poison Gaussians will be injected"
                 )
             callbacks.append(
                 TrainingCallback(
