@@ -26,6 +26,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.illusion import (
     BUILTIN_ILLUSIONS,
+    Illusion,
     builtin_illusion,
     composite,
     load_illusion,
