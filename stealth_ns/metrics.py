@@ -8,8 +8,10 @@ write ``null``) instead of failing.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -58,4 +60,64 @@ class LazyLPIPS:
         if not self.available:
             return None
         self._metric = self._metric.to(a.device)
-        return float(self._metric(a.clamp(0, 1), b.clamp(0, 1)))
+        try:
+            return float(self._metric(a.clamp(0, 1), b.clamp(0, 1)))
+        except (RuntimeError, ValueError) as err:  # e.g. an image too small for AlexNet's pooling
+            self.reason = f"{type(err).__name__}: {err}".splitlines()[0]
+            return None
+
+
+def _as_numpy(x) -> np.ndarray:
+    return x.detach().cpu().float().numpy() if isinstance(x, Tensor) else np.asarray(x, dtype=np.float32)
+
+
+def masked_psnr(pred, target, mask) -> float:
+    """PSNR (dB) over the mask: MSE over mask pixels x 3 channels, images in [0, 1].
+
+    Args:
+        pred, target: [H, W, 3] in [0, 1] (numpy or torch).
+        mask: [H, W] bool.
+
+    Returns:
+        PSNR in dB; ``inf`` for a perfect match inside the mask.
+    """
+    p, t, m = _as_numpy(pred), _as_numpy(target), _as_numpy(mask) > 0.5
+    if not m.any():
+        raise ValueError("masked_psnr: the mask is empty")
+    mse = float(np.mean((p[m] - t[m]) ** 2))
+    return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
+
+
+def mask_bbox(mask) -> tuple[slice, slice]:
+    """(rows, cols) slices of the mask's bounding box."""
+    m = _as_numpy(mask) > 0.5
+    if not m.any():
+        raise ValueError("mask_bbox: the mask is empty")
+    rows, cols = np.nonzero(m)
+    return slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1)
+
+
+def masked_crops(pred, target, mask) -> tuple[np.ndarray, np.ndarray]:
+    """Both images cropped to the mask's bounding box with everything outside the mask zeroed."""
+    rs, cs = mask_bbox(mask)
+    m = (_as_numpy(mask) > 0.5)[rs, cs][..., None]
+    return _as_numpy(pred)[rs, cs] * m, _as_numpy(target)[rs, cs] * m
+
+
+def masked_ssim(pred, target, mask) -> float:
+    """SSIM on the mask's bounding box, outside the mask zeroed in both images.
+
+    Gaussian-weighted SSIM (11 px window, sigma 1.5, as nerfstudio's and the 3DGS papers'); for
+    boxes smaller than the window, a uniform window of the largest odd size that fits.
+    """
+    from skimage.metrics import structural_similarity
+
+    p, t = masked_crops(pred, target, mask)
+    side = min(p.shape[:2])
+    if side >= 11:
+        kw = {"gaussian_weights": True, "sigma": 1.5, "use_sample_covariance": False}
+    elif side >= 3:
+        kw = {"win_size": side if side % 2 else side - 1}
+    else:
+        return 1.0 if np.array_equal(p, t) else float("nan")
+    return float(structural_similarity(p, t, data_range=1.0, channel_axis=-1, **kw))

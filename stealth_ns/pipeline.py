@@ -37,6 +37,7 @@ from stealth_ns.attack.injection import PoisonPlacement, PoisonView, append_gaus
 from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager
 from stealth_ns.errors import StealthNSError
+from stealth_ns.metrics import masked_crops, masked_psnr, masked_ssim
 from stealth_ns.model import POISON_TAG, StealthSplatModel
 
 
@@ -258,6 +259,67 @@ class StealthPipeline(VanillaPipeline):
             f"({n_before} -> {model.num_points}; {placement.timings['total_s']:.1f} s)"
         )
         return placement
+
+    # ------------------------------------------------------------------ evaluation
+    @torch.no_grad()
+    def attack_metrics(self, lpips_nulls: bool = True) -> dict[str, Any]:
+        """V-illusory (masked metrics of each poisoned-view render against I_ILL) and the PSNR of
+        the innocent training views against their clean images.
+
+        Keys: ``v_illusory_{psnr,ssim,lpips}`` (means over poisoned views), the same with
+        ``[view name]`` per view, ``innocent_train_psnr``. When LPIPS is unavailable and
+        ``lpips_nulls`` is set, ``v_illusory_lpips`` is None and ``lpips_unavailable`` says why;
+        otherwise LPIPS keys are left out (training logs take floats only).
+        """
+        cameras = self.datamanager.train_dataset.cameras
+        model = self.model
+        was_training = model.training
+        model.eval()
+        results: dict[str, Any] = {}
+        sums = {"psnr": [], "ssim": [], "lpips": []}
+        for v in self.poison_views:
+            pred = model.get_outputs(cameras[v.index : v.index + 1].to(self.device))["rgb"].float().cpu()
+            psnr = masked_psnr(pred, v.target, v.mask)
+            ssim = masked_ssim(pred, v.target, v.mask)
+            crop_pred, crop_target = masked_crops(pred, v.target, v.mask)
+            lpips = model.lpips_metric(
+                torch.from_numpy(crop_pred).permute(2, 0, 1)[None],
+                torch.from_numpy(crop_target).permute(2, 0, 1)[None],
+            )
+            for key, value in (("psnr", psnr), ("ssim", ssim), ("lpips", lpips)):
+                if value is not None:
+                    results[f"v_illusory_{key}[{v.name}]"] = value
+                    sums[key].append(value)
+        for key, values in sums.items():
+            if values:
+                results[f"v_illusory_{key}"] = float(np.mean(values))
+        if not sums["lpips"] and lpips_nulls:
+            results["v_illusory_lpips"] = None
+            results["lpips_unavailable"] = model.lpips_metric.reason
+        poisoned = {v.index for v in self.poison_views}
+        innocent = []
+        for index in range(len(cameras)):
+            if index in poisoned:
+                continue
+            image = self.datamanager.cached_train[index]["image"]
+            clean = image[..., :3].float() / 255.0 if image.dtype == torch.uint8 else image[..., :3].float()
+            pred = model.get_outputs(cameras[index : index + 1].to(self.device))["rgb"].float().cpu()
+            mse = torch.mean((pred - clean) ** 2).item()
+            innocent.append(10 * math.log10(1 / mse) if mse > 0 else math.inf)
+        if innocent:
+            results["innocent_train_psnr"] = float(np.mean(innocent))
+        model.train(was_training)
+        return results
+
+    def get_average_eval_image_metrics(
+        self, step: int | None = None, output_path: Path | None = None, get_std: bool = False
+    ) -> dict[str, Any]:
+        """nerfstudio's held-out (V-test) metrics plus, for an attacked run, ``attack_metrics``."""
+        metrics = super().get_average_eval_image_metrics(step=step, output_path=output_path, get_std=get_std)
+        if self.poison_views:
+            # ns-eval calls without a step and writes JSON (nulls allowed); training logs need floats
+            metrics.update(self.attack_metrics(lpips_nulls=step is None))
+        return metrics
 
     # ------------------------------------------------------------------ artifacts
     def _write_view_artifacts(self) -> None:
