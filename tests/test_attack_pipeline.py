@@ -39,7 +39,7 @@ def test_poisoned_view_gets_target_and_innocent_views_get_noise(scene):
     for i, image in cached_before.items():
         assert torch.equal(dm.cached_train[i]["image"], image)
     # eval images are never touched
-    for i in range(len(dm.cached_eval)):
+    for _ in range(len(dm.cached_eval)):
         _, data = dm.next_eval_image(step=0)
         assert any(torch.equal(data["image"], dm.cached_eval[j]["image"]) for j in range(len(dm.cached_eval)))
 
