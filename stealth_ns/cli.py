@@ -64,11 +64,32 @@ class Demo:
         print(run_demo(self.output, self.iterations, self.seed))
 
 
+@dataclass
+class BenchRaster:
+    """Time forward and forward+backward of the compiled and pure-PyTorch CPU rasterizers."""
+
+    json: Path | None = None
+    """Also write the figures to this JSON file."""
+    quick: bool = False
+    """Only the smallest case, fewer repeats (a smoke run, not for reporting)."""
+    threads: int | None = None
+    """Torch/OpenMP threads (default: torch's default, the number of cores)."""
+
+    def main(self) -> None:
+        from stealth_ns.raster.bench import DEFAULT_CASES, run_raster_benchmark
+
+        if self.json is not None and not self.json.parent.exists():
+            raise StealthNSError(f"cannot write {self.json}: folder {self.json.parent} does not exist")
+        kwargs = {"cases": DEFAULT_CASES[:1], "repeats": 3} if self.quick else {}
+        run_raster_benchmark(json_path=self.json, threads=self.threads, **kwargs)
+
+
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
 # tyro union) so that every command, nested ones included, gets its own --help.
 COMMANDS: dict[str, type] = {
     "make-scene": MakeScene,
     "demo": Demo,
+    "bench raster": BenchRaster,
 }
 
 

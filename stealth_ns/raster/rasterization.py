@@ -163,8 +163,8 @@ def rasterization(
             backgrounds = backgrounds.new_zeros(C, 1)
 
     tile_width, tile_height = tile_grid(width, height, tile_size)
-    isect_offsets, flatten_ids = isect_tiles(means2d, radii, depths, tile_size, tile_width, tile_height)
-    raster = _cpu_kernel(name)
+    isect, raster = _cpu_kernels(name)
+    isect_offsets, flatten_ids = isect(means2d, radii, depths, tile_size, tile_width, tile_height)
     render_colors, render_alphas = raster(
         means2d,
         conics,
@@ -202,9 +202,10 @@ def rasterization(
     return render_colors, render_alphas, info
 
 
-def _cpu_kernel(name: str):
+def _cpu_kernels(name: str):
+    """(tile intersection, rasterize-to-pixels) of a CPU backend; both give identical results."""
     if name == "cpp":
-        from stealth_ns.raster.cpp_backend import rasterize_to_pixels_cpp
+        from stealth_ns.raster.cpp_backend import isect_tiles_cpp, rasterize_to_pixels_cpp
 
-        return rasterize_to_pixels_cpp
-    return rasterize_to_pixels_torch
+        return isect_tiles_cpp, rasterize_to_pixels_cpp
+    return isect_tiles, rasterize_to_pixels_torch

@@ -1,0 +1,939 @@
+// CPU rasterize-to-pixels for 3D Gaussian Splatting.
+//
+// Exact CPU counterpart of gsplat 1.4.0's CUDA kernels
+//   gsplat/cuda/csrc/rasterize_to_pixels_fwd.cu  (forward)
+//   gsplat/cuda/csrc/rasterize_to_pixels_bwd.cu  (backward)
+//   gsplat/cuda/csrc/isect_tiles.cu              (tile intersection + sort + offsets)
+// for the non-packed layout ([C, N, ...]), float32, any channel count D.
+//
+// Semantics (identical to gsplat): pixel centre (x + 0.5, y + 0.5);
+//   sigma = 0.5 * (a dx^2 + c dy^2) + b dx dy, with (dx, dy) = mean2d - pixel;
+//   alpha = min(0.999, opacity * exp(-sigma)); the Gaussian is skipped for the
+//   pixel when sigma < 0 or alpha < 1/255; compositing front to back, stopping
+//   (exclusively) when T * (1 - alpha) <= 1e-4; colour += T_final * background;
+//   render_alpha = 1 - T_final.  The backward walks back to front from the saved
+//   final transmittance and the index of the last contributor, recovering T by
+//   division as gsplat does, and -- as gsplat -- does not propagate gradient
+//   through the 0.999 clamp (condition `opacity * exp(-sigma) <= 0.999`).
+//
+// CPU design: one task per (camera, tile), `omp parallel for schedule(dynamic)`.
+// Inside a task the loop order is Gaussian-outer / pixel-inner: the tile's list
+// is walked in order (front to back in the forward, stopping when every pixel
+// of the tile is done; back to front in the backward, starting at the largest
+// last-contributor index of the tile).  Each Gaussian only visits the pixels of
+// the tile that can pass the alpha >= 1/255 test: the ellipse
+// {sigma <= log(255 * opacity)}, slightly enlarged to absorb float rounding,
+// row by row, in blocks of 8 pixels (8-wide vectors).  Every visited pixel runs
+// exactly the per-pixel code of the CUDA kernel, so this culling changes the
+// amount of work, never the result (`cull=false` scans whole tiles; the tests
+// check both agree bitwise).  Per-pixel state (T, colour planes, last index,
+// done mask; in the backward T, upstream gradients, accumulated colour)
+// lives in per-thread tile scratch (structure of arrays).  Per-Gaussian data
+// (conic, opacity, footprint) is precomputed once in a parallel pass.
+// Memory: O(image + C*N + n_isects) (+ per-thread tile scratch), never
+// pairs x pixels.
+//
+// exp(): a vectorised Cephes-style expf (~1 ulp), identical in forward and
+// backward; gsplat uses the approximate __expf.  Built without -ffast-math and
+// with -ffp-contract=off, so results do not depend on FMA contraction and are
+// bitwise reproducible across runs and thread counts (backward mode 0).
+//
+// Backward accumulation of per-Gaussian gradients coming from different tiles
+// (mode argument of rasterize_bwd):
+//   0: per-intersection buffer [n_isects, 6 + D] (each entry written by exactly
+//      one tile, no race), reduced afterwards in isect order -> deterministic;
+//   1: OpenMP atomics straight into the gradient tensors;
+//   2: per-thread [C*N, 6 + D] buffers reduced at the end.
+
+#include <torch/extension.h>
+
+#include <ATen/Parallel.h>
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <vector>
+
+namespace {
+
+constexpr float kAlphaMin = 1.f / 255.f;
+constexpr float kAlphaMax = 0.999f;
+constexpr float kTransmittanceMin = 1e-4f;
+
+// ---------------------------------------------------------------------------
+// 8-wide float vectors (GCC vector extensions: AVX/AVX-512 registers when the
+// target has them, emulated otherwise).  A tile row is processed in blocks of
+// 8 pixels; every lane does exactly the scalar per-pixel computation.
+// ---------------------------------------------------------------------------
+constexpr int VW = 8;
+typedef float vf __attribute__((vector_size(32)));
+typedef int32_t vi __attribute__((vector_size(32)));
+typedef float vf_u __attribute__((vector_size(32), aligned(4), __may_alias__));
+typedef int32_t vi_u __attribute__((vector_size(32), aligned(4), __may_alias__));
+typedef int64_t vl __attribute__((vector_size(32)));
+
+inline vf vld(const float *p) { return *reinterpret_cast<const vf_u *>(p); }
+inline void vst(float *p, vf v) { *reinterpret_cast<vf_u *>(p) = v; }
+inline vi vild(const int32_t *p) { return *reinterpret_cast<const vi_u *>(p); }
+inline void vist(int32_t *p, vi v) { *reinterpret_cast<vi_u *>(p) = v; }
+inline vf vset(float a) { return vf{a, a, a, a, a, a, a, a}; }
+inline vi viset(int32_t a) { return vi{a, a, a, a, a, a, a, a}; }
+inline bool vany(vi m) {
+    const vl t = (vl)m;
+    return (t[0] | t[1] | t[2] | t[3]) != 0;
+}
+inline int vcount(vi m) {
+    int n = 0;
+    for (int l = 0; l < VW; ++l) n += m[l] != 0;
+    return n;
+}
+inline float vsum(vf v) {
+    // fixed order -> deterministic
+    return ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]));
+}
+inline vf vsel(vi m, vf a, vf b) { return m ? a : b; }
+inline vf vmin(vf a, vf b) { return a < b ? a : b; }  // std::min(b, a) semantics
+
+// exp(x), lane-wise: Cody-Waite range reduction + Cephes' degree-6 polynomial
+// (~1 ulp where it matters), exp(0) == 1 exactly, exp(x) <= 1 for x <= 0, 0 below
+// -87.  Inlined and vectorised (glibc's expf is a call per pixel); used by both
+// forward and backward so that they take identical decisions.  gsplat's CUDA
+// kernels use the approximate __expf as well.
+inline vf vexp(vf x) {
+    const vi tiny = x < vset(-87.0f);
+    x = vsel(tiny, vset(-87.0f), x);
+    x = vsel(x > vset(88.0f), vset(88.0f), x);
+    const vf magic = vset(12582912.f);
+    const vf kf = (x * 1.44269504088896341f + magic) - magic;
+    vf r = x - kf * 0.693359375f;
+    r = r - kf * -2.12194440e-4f;
+    vf p = vset(1.9875691500e-4f);
+    p = p * r + 1.3981999507e-3f;
+    p = p * r + 8.3334519073e-3f;
+    p = p * r + 4.1665795894e-2f;
+    p = p * r + 1.6666665459e-1f;
+    p = p * r + 5.0000001201e-1f;
+    p = p * (r * r) + r + 1.0f;
+    const vi k = __builtin_convertvector(kf, vi);
+    const vi bits = (k + 127) << 23;
+    const vf res = p * (vf)bits;
+    return vsel(tiny, vset(0.f), res);
+}
+
+// sigma and alpha of one block of 8 pixels: pixel centres px, row offset dy.
+// Shared by forward and backward so that both take identical decisions.
+struct BlockEval {
+    vf dx, sigma, vis, alpha;
+    vi pass;  // sigma >= 0 && alpha >= 1/255
+};
+
+inline BlockEval eval_block(float mx, float ca, float cb, float cc, float op, float dy, vf px) {
+    BlockEval e;
+    e.dx = mx - px;
+    const float cdd = cc * dy * dy;
+    e.sigma = 0.5f * (ca * e.dx * e.dx + cdd) + cb * e.dx * dy;
+    e.vis = vexp(-e.sigma);
+    e.alpha = vmin(op * e.vis, vset(kAlphaMax));
+    e.pass = (e.sigma >= vset(0.f)) & (e.alpha >= vset(kAlphaMin));
+    return e;
+}
+
+// ---------------------------------------------------------------------------
+// Per-Gaussian footprint: the pixels that may satisfy alpha >= 1/255 lie in
+// the ellipse {sigma <= t}, t = log(255 * opacity).  We use a slightly larger
+// threshold teff (absorbing the float rounding of sigma and of the pixel
+// offsets) and visit, row by row, the column span of that ellipse (plus
+// kSpanPad).  Every visited pixel is then tested with the exact float formula,
+// so the footprint only bounds the work.  Computed once per Gaussian (in
+// double), used by every tile it intersects, in forward and backward.
+// Non-positive-definite or non-finite conics fall back to a full-tile scan.
+// ---------------------------------------------------------------------------
+enum : int32_t { kSkip = 0, kFull = 1, kEllipse = 2 };
+// Extra pixels on each side of the computed spans: covers the float rounding of
+// the span computation (errors ~1e-4 px for coordinates < 1e3 px; the teff margin
+// already covers the rounding of sigma itself).
+constexpr float kSpanPad = 0.05f;
+// Software prefetch distance (in list entries) for the Gaussian records of a tile's list.
+constexpr int64_t kPrefetch = 4;
+
+struct GPrep {
+    float mx, my, a, b, c, o;
+    float two_a_teff;  // 2 a teff
+    float det;         // a c - b^2
+    float inv_a, b_over_a;
+    float ext_y;       // |dy| extent of the enlarged ellipse
+    int32_t kind;      // kSkip (opacity < 1/255: alpha < 1/255 everywhere), kFull, kEllipse
+};
+
+inline GPrep make_prep(const float *m2, const float *con, float o_f, float coord_scale, bool cull) {
+    GPrep g;
+    g.mx = m2[0];
+    g.my = m2[1];
+    g.a = con[0];
+    g.b = con[1];
+    g.c = con[2];
+    g.o = o_f;
+    g.two_a_teff = g.det = g.inv_a = g.b_over_a = g.ext_y = 0.f;
+    // alpha <= opacity (exp(-sigma) <= 1 when sigma >= 0): nothing passes 1/255.
+    if (o_f < kAlphaMin) {
+        g.kind = kSkip;
+        return g;
+    }
+    g.kind = kFull;
+    if (!cull) return g;
+    const double a = g.a, b = g.b, c = g.c, o = o_f;
+    const double det = a * c - b * b;
+    if (!(a > 0.0) || !(c > 0.0) || !(det > 0.0) || !std::isfinite(det) || !std::isfinite(o) ||
+        !std::isfinite((double)g.mx) || !std::isfinite((double)g.my))
+        return g;  // full-tile scan
+    const double t = std::log(255.0 * o);
+    const double lmax = 0.5 * (a + c) + std::sqrt(0.25 * (a - c) * (a - c) + b * b);
+    const double lmin = det / lmax;
+    // |0.5 a dx^2| + |0.5 c dy^2| + |b dx dy| <= kappa * sigma: bounds the float error of sigma
+    const double kappa = (std::max(a, c) + std::fabs(b)) / lmin;
+    // rounding of dx = mx - px (float subtraction of coordinates of magnitude ~ coord_scale)
+    const double grad = lmax * std::sqrt(2.0 * (std::fabs(t) + 1.0) / lmin);
+    const double dpad =
+        4.0 * grad * 1.2e-7 * (coord_scale + std::fabs((double)g.mx) + std::fabs((double)g.my));
+    const double teff = t + 1e-6 * kappa * (std::fabs(t) + 1.0) + 1e-4 * (1.0 + std::fabs(t)) + dpad;
+    const double ext = std::sqrt(2.0 * a * teff / det);
+    if (!std::isfinite(teff) || !std::isfinite(ext) || ext > 1e7) return g;
+    g.kind = kEllipse;
+    g.two_a_teff = (float)(2.0 * a * teff);
+    g.det = (float)det;
+    g.inv_a = (float)(1.0 / a);
+    g.b_over_a = (float)(b / a);
+    g.ext_y = (float)ext;
+    return g;
+}
+
+// Rows [y0, y1) of the tile rows [ty0, ty1) that the Gaussian may touch.
+inline void prep_rows(const GPrep &g, int ty0, int ty1, int &y0, int &y1) {
+    if (g.kind != kEllipse) {
+        y0 = ty0;
+        y1 = ty1;
+        return;
+    }
+    const float lo = std::ceil(g.my - g.ext_y - 0.5f - kSpanPad);
+    const float hi = std::floor(g.my + g.ext_y - 0.5f + kSpanPad) + 1.f;  // exclusive
+    y0 = lo <= (float)ty0 ? ty0 : (lo >= (float)ty1 ? ty1 : (int)lo);
+    y1 = hi >= (float)ty1 ? ty1 : (hi <= (float)ty0 ? ty0 : (int)hi);
+    if (y1 < y0) y1 = y0;
+}
+
+// Pixel columns [j0, j1) of row i (pixel centre y = i + 0.5) inside the tile columns [tx0, tx1).
+inline void prep_span(const GPrep &g, float dy, int tx0, int tx1, int &j0, int &j1) {
+    if (g.kind != kEllipse) {
+        j0 = tx0;
+        j1 = tx1;
+        return;
+    }
+    // 0.5 a dx^2 + b dy dx + 0.5 c dy^2 <= teff  <=>  px in centre -+ sqrt(2 a teff - det dy^2) / a
+    const float disc = g.two_a_teff - g.det * dy * dy;
+    if (!(disc >= 0.f)) {
+        j0 = j1 = tx0;
+        return;
+    }
+    const float s = std::sqrt(disc) * g.inv_a;
+    const float centre = g.mx + g.b_over_a * dy;
+    const float lo = std::ceil(centre - s - 0.5f - kSpanPad);
+    const float hi = std::floor(centre + s - 0.5f + kSpanPad) + 1.f;  // exclusive
+    j0 = lo <= (float)tx0 ? tx0 : (lo >= (float)tx1 ? tx1 : (int)lo);
+    j1 = hi >= (float)tx1 ? tx1 : (hi <= (float)tx0 ? tx0 : (int)hi);
+    if (j1 < j0) j1 = j0;
+}
+
+// Parallel pre-pass over the C*N Gaussians.
+std::vector<GPrep> prepare(
+    int64_t CN, const float *means2d, const float *conics, const float *opacities, float coord_scale, bool cull,
+    int n_threads
+) {
+    std::vector<GPrep> prep((size_t)CN);
+#pragma omp parallel for schedule(static) num_threads(n_threads)
+    for (int64_t i = 0; i < CN; ++i)
+        prep[i] = make_prep(means2d + 2 * i, conics + 3 * i, opacities[i], coord_scale, cull);
+    return prep;
+}
+
+inline void atomic_add(float *addr, float v) {
+#pragma omp atomic update
+    *addr += v;
+}
+
+struct TileGeom {
+    int W, H, ts, tiles_x, tiles_y;
+};
+
+inline void tile_range(
+    const int32_t *offsets, int64_t cam, int64_t tile, int64_t C, int64_t n_tiles, int64_t n_isects,
+    int64_t &start, int64_t &end
+) {
+    const int64_t flat = cam * n_tiles + tile;
+    start = offsets[flat];
+    end = (flat == C * n_tiles - 1) ? n_isects : (int64_t)offsets[flat + 1];
+}
+
+// ---------------------------------------------------------------------------
+// Forward
+// ---------------------------------------------------------------------------
+template <int DT>
+void fwd_impl(
+    int64_t C, int64_t N, int Drt, const TileGeom &g, int64_t n_isects, bool cull,
+    const float *__restrict__ means2d, const float *__restrict__ conics, const float *__restrict__ colors,
+    const float *__restrict__ opacities, const float *__restrict__ backgrounds,
+    const int32_t *__restrict__ offsets, const int32_t *__restrict__ flatten_ids,
+    float *__restrict__ out_colors, float *__restrict__ out_alphas, float *__restrict__ out_T,
+    int32_t *__restrict__ out_last, int n_threads
+) {
+    const std::vector<GPrep> prep_v =
+        prepare(C * N, means2d, conics, opacities, (float)(g.W + g.H), cull, n_threads);
+    const GPrep *__restrict__ prep = prep_v.data();
+    const int D = DT > 0 ? DT : Drt;
+    const int ts = g.ts;
+    const int stride = (ts + VW - 1) / VW * VW;  // padded row length of the per-tile state
+    const int npad = stride * ts;
+    const int64_t n_tiles = (int64_t)g.tiles_x * g.tiles_y;
+    const int64_t n_tasks = C * n_tiles;
+    const int64_t HW = (int64_t)g.H * g.W;
+    const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
+
+#pragma omp parallel num_threads(n_threads)
+    {
+        // per-thread tile state, structure of arrays: T, last index, done mask, colour planes
+        std::vector<float> T_buf(npad), col_buf((size_t)npad * D);
+        std::vector<int32_t> last_buf(npad), done_buf(npad);
+        float *__restrict__ Tp = T_buf.data();
+        float *__restrict__ colp = col_buf.data();
+        int32_t *__restrict__ lastp = last_buf.data();
+        int32_t *__restrict__ donep = done_buf.data();
+
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t task = 0; task < n_tasks; ++task) {
+            const int64_t cam = task / n_tiles;
+            const int64_t tile = task % n_tiles;
+            const int tyi = (int)(tile / g.tiles_x), txi = (int)(tile % g.tiles_x);
+            const int x_base = txi * ts, y_base = tyi * ts;
+            const int tx1 = std::min(x_base + ts, g.W), ty1 = std::min(y_base + ts, g.H);
+            if (tx1 <= x_base || ty1 <= y_base) continue;  // tile fully outside the image
+            int64_t start, end;
+            tile_range(offsets, cam, tile, C, n_tiles, n_isects, start, end);
+
+            std::fill(Tp, Tp + npad, 1.f);
+            std::fill(colp, colp + (size_t)npad * D, 0.f);
+            std::fill(lastp, lastp + npad, (int32_t)-1);
+            std::fill(donep, donep + npad, (int32_t)0);
+            int active = (tx1 - x_base) * (ty1 - y_base);
+
+            for (int64_t idx = start; idx < end && active > 0; ++idx) {
+                const int64_t gi = flatten_ids[idx];
+                if (idx + kPrefetch < end) {
+                    const int64_t gn = flatten_ids[idx + kPrefetch];
+                    __builtin_prefetch(prep + gn);
+                    __builtin_prefetch(colors + gn * D);
+                }
+                const GPrep &gp = prep[gi];
+                if (gp.kind == kSkip) continue;
+                const float mx = gp.mx, my = gp.my, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;
+                const float *__restrict__ cptr = colors + gi * D;
+                const vi idxv = viset((int32_t)idx);
+                int y0, y1;
+                prep_rows(gp, y_base, ty1, y0, y1);
+                for (int i = y0; i < y1; ++i) {
+                    const float dy = my - ((float)i + 0.5f);
+                    int j0, j1;
+                    prep_span(gp, dy, x_base, tx1, j0, j1);
+                    const int lx0 = j0 - x_base, lx1 = j1 - x_base;
+                    const int row = (i - y_base) * stride;
+                    for (int b = lx0 / VW * VW; b < lx1; b += VW) {
+                        const vi lx = lane + b;
+                        const vi in_span = (lx >= viset(lx0)) & (lx < viset(lx1));
+                        const int o = row + b;
+                        const vi done = vild(donep + o);
+                        const vi todo = in_span & ~done;
+                        if (!vany(todo)) continue;
+                        const vf px = __builtin_convertvector(lx + x_base, vf) + 0.5f;
+                        const BlockEval e = eval_block(mx, ca, cb, cc, op, dy, px);
+                        const vi valid = todo & e.pass;
+                        if (!vany(valid)) continue;
+                        const vf T = vld(Tp + o);
+                        const vf next_T = T * (1.f - e.alpha);
+                        const vi term = valid & (next_T <= vset(kTransmittanceMin));  // exclusive stop
+                        const vi contrib = valid & ~term;
+                        if (vany(term)) {
+                            vist(donep + o, done | term);
+                            active -= vcount(term);
+                        }
+                        const vf vis = e.alpha * T;
+                        vst(Tp + o, vsel(contrib, next_T, T));
+                        vist(lastp + o, contrib ? idxv : vild(lastp + o));
+                        for (int k = 0; k < D; ++k) {
+                            float *__restrict__ cp = colp + (size_t)k * npad + o;
+                            const vf cur = vld(cp);
+                            vst(cp, vsel(contrib, cur + cptr[k] * vis, cur));
+                        }
+                    }
+                }
+            }
+
+            const float *bg = backgrounds ? backgrounds + cam * D : nullptr;
+            for (int i = y_base; i < ty1; ++i) {
+                for (int j = x_base; j < tx1; ++j) {
+                    const int p = (i - y_base) * stride + (j - x_base);
+                    const int64_t pix = cam * HW + (int64_t)i * g.W + j;
+                    const float T = Tp[p];
+                    out_T[pix] = T;
+                    out_alphas[pix] = 1.f - T;
+                    out_last[pix] = lastp[p];
+                    float *oc = out_colors + pix * D;
+                    if (bg) {
+                        for (int k = 0; k < D; ++k) oc[k] = colp[(size_t)k * npad + p] + T * bg[k];
+                    } else {
+                        for (int k = 0; k < D; ++k) oc[k] = colp[(size_t)k * npad + p];
+                    }
+                }
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Backward
+// ---------------------------------------------------------------------------
+template <int DT>
+void bwd_impl(
+    int64_t C, int64_t N, int Drt, const TileGeom &g, int64_t n_isects, bool cull, int mode,
+    const float *__restrict__ means2d, const float *__restrict__ conics, const float *__restrict__ colors,
+    const float *__restrict__ opacities, const float *__restrict__ backgrounds,
+    const int32_t *__restrict__ offsets, const int32_t *__restrict__ flatten_ids,
+    const float *__restrict__ T_final, const int32_t *__restrict__ last_ids,
+    const float *__restrict__ v_colors_out, const float *__restrict__ v_alphas_out,
+    float *__restrict__ v_means2d, float *__restrict__ v_conics, float *__restrict__ v_colors,
+    float *__restrict__ v_opacities,
+    float *__restrict__ isect_buf,   // mode 0: [n_isects, 6 + D] zero-initialised
+    float *__restrict__ thread_buf,  // mode 2: [n_threads, C*N, 6 + D] zero-initialised
+    int n_threads
+) {
+    const std::vector<GPrep> prep_v =
+        prepare(C * N, means2d, conics, opacities, (float)(g.W + g.H), cull, n_threads);
+    const GPrep *__restrict__ prep = prep_v.data();
+    const int D = DT > 0 ? DT : Drt;
+    const int S = 6 + D;  // per-Gaussian gradient record: xy(2) conic(3) opacity(1) rgb(D)
+    const int ts = g.ts;
+    const int stride = (ts + VW - 1) / VW * VW;
+    const int npad = stride * ts;
+    const int64_t n_tiles = (int64_t)g.tiles_x * g.tiles_y;
+    const int64_t n_tasks = C * n_tiles;
+    const int64_t HW = (int64_t)g.H * g.W;
+    const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
+
+#pragma omp parallel num_threads(n_threads)
+    {
+        std::vector<float> T_buf(npad), w_buf(npad), vout_buf((size_t)npad * D), acc_buf((size_t)npad * D);
+        std::vector<int32_t> last_buf(npad);
+        std::vector<vf> grgb_dyn(DT > 0 ? 0 : D);
+        float *__restrict__ Tp = T_buf.data();
+        float *__restrict__ wp = w_buf.data();
+        float *__restrict__ voutp = vout_buf.data();
+        float *__restrict__ accp = acc_buf.data();
+        int32_t *__restrict__ lastp = last_buf.data();
+        float *__restrict__ my_buf = mode == 2 ? thread_buf + (size_t)omp_get_thread_num() * C * N * S : nullptr;
+
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t task = 0; task < n_tasks; ++task) {
+            const int64_t cam = task / n_tiles;
+            const int64_t tile = task % n_tiles;
+            const int tyi = (int)(tile / g.tiles_x), txi = (int)(tile % g.tiles_x);
+            const int x_base = txi * ts, y_base = tyi * ts;
+            const int tx1 = std::min(x_base + ts, g.W), ty1 = std::min(y_base + ts, g.H);
+            if (tx1 <= x_base || ty1 <= y_base) continue;
+            int64_t start, end;
+            tile_range(offsets, cam, tile, C, n_tiles, n_isects, start, end);
+            if (end <= start) continue;
+
+            const float *bg = backgrounds ? backgrounds + cam * D : nullptr;
+            std::fill(lastp, lastp + npad, (int32_t)-1);  // padding / outside pixels never match
+            int64_t max_last = -1;
+            for (int i = y_base; i < ty1; ++i) {
+                for (int j = x_base; j < tx1; ++j) {
+                    const int p = (i - y_base) * stride + (j - x_base);
+                    const int64_t pix = cam * HW + (int64_t)i * g.W + j;
+                    const float Tf = T_final[pix];
+                    Tp[p] = Tf;
+                    lastp[p] = last_ids[pix];
+                    max_last = std::max<int64_t>(max_last, last_ids[pix]);
+                    const float *vc = v_colors_out + pix * D;
+                    float bgdot = 0.f;
+                    for (int k = 0; k < D; ++k) {
+                        voutp[(size_t)k * npad + p] = vc[k];
+                        accp[(size_t)k * npad + p] = 0.f;
+                    }
+                    if (bg) {
+                        for (int k = 0; k < D; ++k) bgdot += bg[k] * vc[k];
+                    }
+                    // v_alpha gets ra * T_final * (v_render_alpha - <bg, v_render_color>)
+                    wp[p] = Tf * v_alphas_out[pix] - Tf * bgdot;
+                }
+            }
+            if (max_last < start) continue;
+            if (max_last >= end) max_last = end - 1;
+
+            for (int64_t idx = max_last; idx >= start; --idx) {
+                const int64_t gi = flatten_ids[idx];
+                if (idx - kPrefetch >= start) {
+                    const int64_t gn = flatten_ids[idx - kPrefetch];
+                    __builtin_prefetch(prep + gn);
+                    __builtin_prefetch(colors + gn * D);
+                }
+                const GPrep &gp = prep[gi];
+                if (gp.kind == kSkip) continue;
+                const float mx = gp.mx, my = gp.my, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;
+                const float *__restrict__ cptr = colors + gi * D;
+                const vi idxv = viset((int32_t)idx);
+                int y0, y1;
+                prep_rows(gp, y_base, ty1, y0, y1);
+                vf grgb_st[DT > 0 ? DT : 1];
+                vf *grgb = DT > 0 ? grgb_st : grgb_dyn.data();
+                for (int k = 0; k < D; ++k) grgb[k] = vset(0.f);
+                vf g_ca = vset(0.f), g_cb = g_ca, g_cc = g_ca, g_x = g_ca, g_y = g_ca, g_o = g_ca;
+                bool any = false;
+                for (int i = y0; i < y1; ++i) {
+                    const float dy = my - ((float)i + 0.5f);
+                    int j0, j1;
+                    prep_span(gp, dy, x_base, tx1, j0, j1);
+                    const int lx0 = j0 - x_base, lx1 = j1 - x_base;
+                    const int row = (i - y_base) * stride;
+                    for (int b = lx0 / VW * VW; b < lx1; b += VW) {
+                        const vi lx = lane + b;
+                        const vi in_span = (lx >= viset(lx0)) & (lx < viset(lx1));
+                        const int o = row + b;
+                        const vi mine = in_span & (idxv <= vild(lastp + o));
+                        if (!vany(mine)) continue;
+                        const vf px = __builtin_convertvector(lx + x_base, vf) + 0.5f;
+                        const BlockEval e = eval_block(mx, ca, cb, cc, op, dy, px);
+                        const vi valid = mine & e.pass;
+                        if (!vany(valid)) continue;
+                        any = true;
+                        const vf ra = 1.f / (1.f - e.alpha);
+                        const vf T = vsel(valid, vld(Tp + o) * ra, vld(Tp + o));
+                        vst(Tp + o, T);
+                        const vf fac = e.alpha * T;
+                        vf v_alpha = vset(0.f);
+                        for (int k = 0; k < D; ++k) {
+                            const vf vo = vld(voutp + (size_t)k * npad + o);
+                            const vf ac = vld(accp + (size_t)k * npad + o);
+                            grgb[k] += vsel(valid, fac * vo, vset(0.f));
+                            v_alpha += (cptr[k] * T - ac * ra) * vo;
+                        }
+                        v_alpha += ra * vld(wp + o);
+                        const vi unclamped = valid & (op * e.vis <= vset(kAlphaMax));
+                        const vf v_sigma = -op * e.vis * v_alpha;
+                        const vf dx = e.dx;
+                        const vf zero = vset(0.f);
+                        g_ca += vsel(unclamped, 0.5f * v_sigma * dx * dx, zero);
+                        g_cb += vsel(unclamped, v_sigma * dx * dy, zero);
+                        g_cc += vsel(unclamped, 0.5f * v_sigma * dy * dy, zero);
+                        g_x += vsel(unclamped, v_sigma * (ca * dx + cb * dy), zero);
+                        g_y += vsel(unclamped, v_sigma * (cb * dx + cc * dy), zero);
+                        g_o += vsel(unclamped, e.vis * v_alpha, zero);
+                        for (int k = 0; k < D; ++k) {
+                            float *__restrict__ acp = accp + (size_t)k * npad + o;
+                            const vf ac = vld(acp);
+                            vst(acp, vsel(valid, ac + cptr[k] * fac, ac));
+                        }
+                    }
+                }
+                if (!any) continue;
+                const float sx = vsum(g_x), sy = vsum(g_y), sa = vsum(g_ca), sb = vsum(g_cb), sc = vsum(g_cc),
+                            so = vsum(g_o);
+                if (mode == 0) {
+                    float *r = isect_buf + idx * S;
+                    r[0] = sx;
+                    r[1] = sy;
+                    r[2] = sa;
+                    r[3] = sb;
+                    r[4] = sc;
+                    r[5] = so;
+                    for (int k = 0; k < D; ++k) r[6 + k] = vsum(grgb[k]);
+                } else if (mode == 1) {
+                    atomic_add(v_means2d + 2 * gi, sx);
+                    atomic_add(v_means2d + 2 * gi + 1, sy);
+                    atomic_add(v_conics + 3 * gi, sa);
+                    atomic_add(v_conics + 3 * gi + 1, sb);
+                    atomic_add(v_conics + 3 * gi + 2, sc);
+                    atomic_add(v_opacities + gi, so);
+                    for (int k = 0; k < D; ++k) atomic_add(v_colors + gi * D + k, vsum(grgb[k]));
+                } else {
+                    float *r = my_buf + gi * S;
+                    r[0] += sx;
+                    r[1] += sy;
+                    r[2] += sa;
+                    r[3] += sb;
+                    r[4] += sc;
+                    r[5] += so;
+                    for (int k = 0; k < D; ++k) r[6 + k] += vsum(grgb[k]);
+                }
+            }
+        }
+    }
+
+    if (mode == 0) {
+        // Deterministic reduction in intersection order; threads own disjoint ranges
+        // of Gaussians (each scans the id list, adds only its own records).
+        const int64_t CN = C * N;
+#pragma omp parallel num_threads(n_threads)
+        {
+            const int nth = omp_get_num_threads(), th = omp_get_thread_num();
+            const int64_t g0 = CN * th / nth, g1 = CN * (th + 1) / nth;
+            for (int64_t idx = 0; idx < n_isects; ++idx) {
+                const int64_t gi = flatten_ids[idx];
+                if (gi < g0 || gi >= g1) continue;
+                const float *r = isect_buf + idx * S;
+                v_means2d[2 * gi] += r[0];
+                v_means2d[2 * gi + 1] += r[1];
+                v_conics[3 * gi] += r[2];
+                v_conics[3 * gi + 1] += r[3];
+                v_conics[3 * gi + 2] += r[4];
+                v_opacities[gi] += r[5];
+                float *vc = v_colors + gi * D;
+                for (int k = 0; k < D; ++k) vc[k] += r[6 + k];
+            }
+        }
+    } else if (mode == 2) {
+        const int64_t CN = C * N;
+#pragma omp parallel for schedule(static) num_threads(n_threads)
+        for (int64_t gi = 0; gi < CN; ++gi) {
+            for (int t = 0; t < n_threads; ++t) {
+                const float *r = thread_buf + ((size_t)t * CN + gi) * S;
+                v_means2d[2 * gi] += r[0];
+                v_means2d[2 * gi + 1] += r[1];
+                v_conics[3 * gi] += r[2];
+                v_conics[3 * gi + 1] += r[3];
+                v_conics[3 * gi + 2] += r[4];
+                v_opacities[gi] += r[5];
+                float *vc = v_colors + gi * D;
+                for (int k = 0; k < D; ++k) vc[k] += r[6 + k];
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Argument checks / dispatch
+// ---------------------------------------------------------------------------
+void check_cpu_f32(const torch::Tensor &t, const char *name) {
+    TORCH_CHECK(t.device().is_cpu(), name, " must be a CPU tensor");
+    TORCH_CHECK(t.scalar_type() == torch::kFloat32, name, " must be float32");
+    TORCH_CHECK(t.is_contiguous(), name, " must be contiguous");
+}
+
+void check_cpu_i32(const torch::Tensor &t, const char *name) {
+    TORCH_CHECK(t.device().is_cpu(), name, " must be a CPU tensor");
+    TORCH_CHECK(t.scalar_type() == torch::kInt32, name, " must be int32");
+    TORCH_CHECK(t.is_contiguous(), name, " must be contiguous");
+}
+
+// Out-of-range offsets / ids would make the kernels read out of bounds: check them
+// (O(tiles + n_isects), negligible next to the rasterization).
+void validate_lists(const torch::Tensor &isect_offsets, const torch::Tensor &flatten_ids, int64_t CN) {
+    const int32_t *off = isect_offsets.data_ptr<int32_t>();
+    const int64_t n_off = isect_offsets.numel(), n = flatten_ids.numel();
+    int64_t prev = 0;
+    for (int64_t i = 0; i < n_off; ++i) {
+        TORCH_CHECK(off[i] >= prev && off[i] <= n, "isect_offsets must be non-decreasing and <= n_isects");
+        prev = off[i];
+    }
+    const int32_t *ids = flatten_ids.data_ptr<int32_t>();
+    int32_t lo = 0, hi = -1;
+    if (n > 0) lo = hi = ids[0];
+    for (int64_t i = 0; i < n; ++i) {
+        lo = std::min(lo, ids[i]);
+        hi = std::max(hi, ids[i]);
+    }
+    TORCH_CHECK(n == 0 || (lo >= 0 && hi < CN), "flatten_ids out of range [0, C*N)");
+}
+
+int resolve_threads(int64_t n_threads) {
+    if (n_threads > 0) return (int)n_threads;
+    return std::max(1, at::get_num_threads());
+}
+
+#define STEALTH_DISPATCH_D(D, FN, ...)         \
+    switch (D) {                               \
+    case 1: FN<1>(__VA_ARGS__); break;         \
+    case 2: FN<2>(__VA_ARGS__); break;         \
+    case 3: FN<3>(__VA_ARGS__); break;         \
+    case 4: FN<4>(__VA_ARGS__); break;         \
+    default: FN<0>(__VA_ARGS__); break;        \
+    }
+
+// Returns (render_colors [C,H,W,D], render_alphas [C,H,W,1], last_ids [C,H,W] int32,
+//          T_final [C,H,W]).  last_ids is -1 for pixels without contributor.
+std::vector<torch::Tensor> rasterize_fwd(
+    const torch::Tensor &means2d, const torch::Tensor &conics, const torch::Tensor &colors,
+    const torch::Tensor &opacities, const c10::optional<torch::Tensor> &backgrounds, int64_t image_width,
+    int64_t image_height, int64_t tile_size, const torch::Tensor &isect_offsets,
+    const torch::Tensor &flatten_ids, bool cull, int64_t n_threads
+) {
+    check_cpu_f32(means2d, "means2d");
+    check_cpu_f32(conics, "conics");
+    check_cpu_f32(colors, "colors");
+    check_cpu_f32(opacities, "opacities");
+    check_cpu_i32(isect_offsets, "isect_offsets");
+    check_cpu_i32(flatten_ids, "flatten_ids");
+    TORCH_CHECK(means2d.dim() == 3 && means2d.size(2) == 2, "means2d must be [C, N, 2]");
+    const int64_t C = means2d.size(0), N = means2d.size(1);
+    TORCH_CHECK(conics.dim() == 3 && conics.size(0) == C && conics.size(1) == N && conics.size(2) == 3,
+                "conics must be [C, N, 3]");
+    TORCH_CHECK(colors.dim() == 3 && colors.size(0) == C && colors.size(1) == N, "colors must be [C, N, D]");
+    TORCH_CHECK(opacities.dim() == 2 && opacities.size(0) == C && opacities.size(1) == N,
+                "opacities must be [C, N]");
+    const int64_t D = colors.size(2);
+    TORCH_CHECK(D >= 1, "colors must have at least one channel");
+    TORCH_CHECK(tile_size >= 1, "tile_size must be positive");
+    TORCH_CHECK(isect_offsets.dim() == 3 && isect_offsets.size(0) == C, "isect_offsets must be [C, th, tw]");
+    const int64_t tiles_y = isect_offsets.size(1), tiles_x = isect_offsets.size(2);
+    TORCH_CHECK(tiles_y * tile_size >= image_height && tiles_x * tile_size >= image_width,
+                "isect_offsets grid does not cover the image");
+    const float *bg = nullptr;
+    if (backgrounds.has_value() && backgrounds->defined()) {
+        check_cpu_f32(*backgrounds, "backgrounds");
+        TORCH_CHECK(backgrounds->dim() == 2 && backgrounds->size(0) == C && backgrounds->size(1) == D,
+                    "backgrounds must be [C, D]");
+        bg = backgrounds->data_ptr<float>();
+    }
+    auto fopt = means2d.options();
+    auto out_colors = torch::empty({C, image_height, image_width, D}, fopt);
+    auto out_alphas = torch::empty({C, image_height, image_width, 1}, fopt);
+    auto out_T = torch::empty({C, image_height, image_width}, fopt);
+    auto out_last = torch::empty({C, image_height, image_width}, fopt.dtype(torch::kInt32));
+    const int64_t n_isects = flatten_ids.numel();
+    TORCH_CHECK(n_isects < (int64_t)std::numeric_limits<int32_t>::max(), "too many intersections");
+    validate_lists(isect_offsets, flatten_ids, C * N);
+    TileGeom g{(int)image_width, (int)image_height, (int)tile_size, (int)tiles_x, (int)tiles_y};
+    const int nt = resolve_threads(n_threads);
+    STEALTH_DISPATCH_D(
+        D, fwd_impl, C, N, (int)D, g, n_isects, cull, means2d.data_ptr<float>(), conics.data_ptr<float>(),
+        colors.data_ptr<float>(), opacities.data_ptr<float>(), bg, isect_offsets.data_ptr<int32_t>(),
+        flatten_ids.data_ptr<int32_t>(), out_colors.data_ptr<float>(), out_alphas.data_ptr<float>(),
+        out_T.data_ptr<float>(), out_last.data_ptr<int32_t>(), nt
+    );
+    return {out_colors, out_alphas, out_last, out_T};
+}
+
+// Returns (v_means2d [C,N,2], v_conics [C,N,3], v_colors [C,N,D], v_opacities [C,N]).
+std::vector<torch::Tensor> rasterize_bwd(
+    const torch::Tensor &means2d, const torch::Tensor &conics, const torch::Tensor &colors,
+    const torch::Tensor &opacities, const c10::optional<torch::Tensor> &backgrounds, int64_t image_width,
+    int64_t image_height, int64_t tile_size, const torch::Tensor &isect_offsets,
+    const torch::Tensor &flatten_ids, const torch::Tensor &T_final, const torch::Tensor &last_ids,
+    const torch::Tensor &v_render_colors, const torch::Tensor &v_render_alphas, bool cull, int64_t mode,
+    int64_t n_threads
+) {
+    check_cpu_f32(means2d, "means2d");
+    check_cpu_f32(conics, "conics");
+    check_cpu_f32(colors, "colors");
+    check_cpu_f32(opacities, "opacities");
+    check_cpu_i32(isect_offsets, "isect_offsets");
+    check_cpu_i32(flatten_ids, "flatten_ids");
+    check_cpu_f32(T_final, "T_final");
+    check_cpu_i32(last_ids, "last_ids");
+    check_cpu_f32(v_render_colors, "v_render_colors");
+    check_cpu_f32(v_render_alphas, "v_render_alphas");
+    const int64_t C = means2d.size(0), N = means2d.size(1), D = colors.size(2);
+    TORCH_CHECK(v_render_colors.numel() == C * image_height * image_width * D, "v_render_colors shape");
+    TORCH_CHECK(v_render_alphas.numel() == C * image_height * image_width, "v_render_alphas shape");
+    TORCH_CHECK(T_final.numel() == C * image_height * image_width, "T_final shape");
+    TORCH_CHECK(last_ids.numel() == C * image_height * image_width, "last_ids shape");
+    TORCH_CHECK(mode >= 0 && mode <= 2, "mode must be 0, 1 or 2");
+    const float *bg = nullptr;
+    if (backgrounds.has_value() && backgrounds->defined()) {
+        check_cpu_f32(*backgrounds, "backgrounds");
+        TORCH_CHECK(backgrounds->numel() == C * D, "backgrounds must be [C, D]");
+        bg = backgrounds->data_ptr<float>();
+    }
+    TORCH_CHECK(isect_offsets.dim() == 3 && isect_offsets.size(0) == C, "isect_offsets must be [C, th, tw]");
+    validate_lists(isect_offsets, flatten_ids, C * N);
+    const int64_t tiles_y = isect_offsets.size(1), tiles_x = isect_offsets.size(2);
+    auto fopt = means2d.options();
+    auto v_means2d = torch::zeros({C, N, 2}, fopt);
+    auto v_conics = torch::zeros({C, N, 3}, fopt);
+    auto v_colors = torch::zeros({C, N, D}, fopt);
+    auto v_opacities = torch::zeros({C, N}, fopt);
+    const int64_t n_isects = flatten_ids.numel();
+    const int nt = resolve_threads(n_threads);
+    torch::Tensor isect_buf, thread_buf;
+    float *isect_ptr = nullptr, *thread_ptr = nullptr;
+    if (mode == 0) {
+        isect_buf = torch::zeros({std::max<int64_t>(n_isects, 1), 6 + D}, fopt);
+        isect_ptr = isect_buf.data_ptr<float>();
+    } else if (mode == 2) {
+        thread_buf = torch::zeros({(int64_t)nt, std::max<int64_t>(C * N, 1), 6 + D}, fopt);
+        thread_ptr = thread_buf.data_ptr<float>();
+    }
+    TileGeom g{(int)image_width, (int)image_height, (int)tile_size, (int)tiles_x, (int)tiles_y};
+    STEALTH_DISPATCH_D(
+        D, bwd_impl, C, N, (int)D, g, n_isects, cull, (int)mode, means2d.data_ptr<float>(),
+        conics.data_ptr<float>(), colors.data_ptr<float>(), opacities.data_ptr<float>(), bg,
+        isect_offsets.data_ptr<int32_t>(), flatten_ids.data_ptr<int32_t>(), T_final.data_ptr<float>(),
+        last_ids.data_ptr<int32_t>(), v_render_colors.data_ptr<float>(), v_render_alphas.data_ptr<float>(),
+        v_means2d.data_ptr<float>(), v_conics.data_ptr<float>(), v_colors.data_ptr<float>(),
+        v_opacities.data_ptr<float>(), isect_ptr, thread_ptr, nt
+    );
+    return {v_means2d, v_conics, v_colors, v_opacities};
+}
+
+// ---------------------------------------------------------------------------
+// Tile intersection (gsplat isect_tiles + isect_offset_encode, non-packed).
+// Order: camera, tile, depth, ties in depth by flattened Gaussian index
+// (gsplat's radix sort is stable and emits intersections in Gaussian order).
+// Returns (isect_offsets [C, tiles_y, tiles_x] int32, flatten_ids [n_isects] int32,
+//          tiles_per_gauss [C, N] int32).
+// ---------------------------------------------------------------------------
+std::vector<torch::Tensor> isect_tiles(
+    const torch::Tensor &means2d, const torch::Tensor &radii, const torch::Tensor &depths, int64_t tile_size,
+    int64_t tile_width, int64_t tile_height, int64_t n_threads
+) {
+    check_cpu_f32(means2d, "means2d");
+    check_cpu_i32(radii, "radii");
+    check_cpu_f32(depths, "depths");
+    TORCH_CHECK(means2d.dim() == 3 && means2d.size(2) == 2, "means2d must be [C, N, 2]");
+    const int64_t C = means2d.size(0), N = means2d.size(1);
+    TORCH_CHECK(radii.numel() == C * N && depths.numel() == C * N, "radii/depths must be [C, N]");
+    TORCH_CHECK(tile_size >= 1 && tile_width >= 0 && tile_height >= 0, "bad tile grid");
+    const int64_t n_tiles = tile_width * tile_height;
+    TORCH_CHECK(n_tiles < (int64_t)std::numeric_limits<int32_t>::max(), "too many tiles");
+    const int nt = resolve_threads(n_threads);
+    const float *m = means2d.data_ptr<float>();
+    const int32_t *r = radii.data_ptr<int32_t>();
+    const float *dep = depths.data_ptr<float>();
+    auto iopt = means2d.options().dtype(torch::kInt32);
+    auto tiles_per_gauss = torch::empty({C, N}, iopt);
+    int32_t *tpg = tiles_per_gauss.data_ptr<int32_t>();
+    const int64_t CN = C * N;
+    // tile rectangle of each Gaussian, as in gsplat (float division, floor/ceil, clamp)
+    std::vector<int32_t> rect((size_t)CN * 4);
+    const float tsf = (float)tile_size;
+    auto clampi = [](float v, int64_t hi) -> int32_t {
+        if (!(v > 0.f)) return 0;  // also NaN -> 0
+        if (v >= (float)hi) return (int32_t)hi;
+        return (int32_t)v;
+    };
+#pragma omp parallel for schedule(static) num_threads(nt)
+    for (int64_t i = 0; i < CN; ++i) {
+        int32_t *rc = rect.data() + 4 * i;
+        if (r[i] <= 0) {
+            rc[0] = rc[1] = rc[2] = rc[3] = 0;
+            tpg[i] = 0;
+            continue;
+        }
+        const float tr = (float)r[i] / tsf;
+        const float tx = m[2 * i] / tsf, ty = m[2 * i + 1] / tsf;
+        rc[0] = clampi(std::floor(tx - tr), tile_width);
+        rc[1] = clampi(std::floor(ty - tr), tile_height);
+        rc[2] = clampi(std::ceil(tx + tr), tile_width);
+        rc[3] = clampi(std::ceil(ty + tr), tile_height);
+        tpg[i] = (rc[3] - rc[1]) * (rc[2] - rc[0]);
+    }
+    // Order of the live Gaussians of each camera by (depth, index): stable LSD radix
+    // sort (4 x 8 bits) of an order-preserving uint32 image of the float depth.  For
+    // positive depths (the only ones with radii > 0 when near_plane > 0) this is
+    // gsplat's order (its key is the float's bit pattern); for negative depths gsplat's
+    // key is ill-defined and we simply use the float order.
+    std::vector<int32_t> order((size_t)CN, -1);
+#pragma omp parallel num_threads(nt)
+    {
+        std::vector<uint32_t> key_a, key_b;
+        std::vector<int32_t> id_b;
+#pragma omp for schedule(dynamic, 1)
+        for (int64_t c = 0; c < C; ++c) {
+            int32_t *o = order.data() + c * N;
+            int64_t n_live = 0;
+            key_a.clear();
+            for (int64_t i = 0; i < N; ++i) {
+                if (tpg[c * N + i] <= 0) continue;
+                float d = dep[c * N + i];
+                if (d == 0.f) d = 0.f;  // -0 == +0
+                uint32_t kbits;
+                std::memcpy(&kbits, &d, 4);
+                // order-preserving map float -> uint32 (negative: flip all bits, else flip sign)
+                key_a.push_back((kbits & 0x80000000u) ? ~kbits : (kbits ^ 0x80000000u));
+                o[n_live++] = (int32_t)i;
+            }
+            if (n_live == 0) continue;
+            key_b.resize(n_live);
+            id_b.resize(n_live);
+            uint32_t *ka = key_a.data(), *kb = key_b.data();
+            int32_t *ia = o, *ib = id_b.data();
+            for (int shift = 0; shift < 32; shift += 8) {
+                int64_t hist[257] = {0};
+                for (int64_t i = 0; i < n_live; ++i) hist[((ka[i] >> shift) & 0xFF) + 1] += 1;
+                if (hist[((ka[0] >> shift) & 0xFF) + 1] == n_live) continue;  // all in one bucket
+                for (int r = 0; r < 256; ++r) hist[r + 1] += hist[r];
+                for (int64_t i = 0; i < n_live; ++i) {
+                    const int64_t dst = hist[(ka[i] >> shift) & 0xFF]++;
+                    kb[dst] = ka[i];
+                    ib[dst] = ia[i];
+                }
+                std::swap(ka, kb);
+                std::swap(ia, ib);
+            }
+            if (ia != o) std::memcpy(o, ia, sizeof(int32_t) * n_live);
+        }
+    }
+    // counting sort into (camera, tile) buckets, visiting Gaussians in depth order
+    std::vector<int64_t> counts((size_t)C * n_tiles + 1, 0);
+    for (int64_t i = 0; i < CN; ++i) {
+        if (tpg[i] <= 0) continue;
+        const int32_t *rc = rect.data() + 4 * i;
+        int64_t *cc = counts.data() + (i / std::max<int64_t>(N, 1)) * n_tiles;
+        for (int32_t y = rc[1]; y < rc[3]; ++y)
+            for (int32_t x = rc[0]; x < rc[2]; ++x) cc[(int64_t)y * tile_width + x] += 1;
+    }
+    auto offsets = torch::empty({C, tile_height, tile_width}, iopt);
+    int32_t *off = offsets.data_ptr<int32_t>();
+    int64_t total = 0;
+    std::vector<int64_t> cursor((size_t)C * n_tiles);
+    for (int64_t b = 0; b < C * n_tiles; ++b) {
+        TORCH_CHECK(total <= (int64_t)std::numeric_limits<int32_t>::max(), "too many intersections");
+        off[b] = (int32_t)total;
+        cursor[b] = total;
+        total += counts[b];
+    }
+    TORCH_CHECK(total <= (int64_t)std::numeric_limits<int32_t>::max(), "too many intersections");
+    auto flatten_ids = torch::empty({total}, iopt);
+    int32_t *fid = flatten_ids.data_ptr<int32_t>();
+    for (int64_t c = 0; c < C; ++c) {
+        const int32_t *o = order.data() + c * N;
+        int64_t *cur = cursor.data() + c * n_tiles;
+        for (int64_t s = 0; s < N; ++s) {
+            const int32_t i = o[s];
+            if (i < 0) break;
+            const int64_t gi = c * N + i;
+            const int32_t *rc = rect.data() + 4 * gi;
+            for (int32_t y = rc[1]; y < rc[3]; ++y)
+                for (int32_t x = rc[0]; x < rc[2]; ++x) fid[cur[(int64_t)y * tile_width + x]++] = (int32_t)gi;
+        }
+    }
+    return {offsets, flatten_ids, tiles_per_gauss};
+}
+
+}  // namespace
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+    m.doc() = "stealth-ns CPU rasterizer (gsplat 1.4.0 rasterize_to_pixels equivalent)";
+    m.def("rasterize_fwd", &rasterize_fwd, py::arg("means2d"), py::arg("conics"), py::arg("colors"),
+          py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
+          py::arg("tile_size"), py::arg("isect_offsets"), py::arg("flatten_ids"), py::arg("cull") = true,
+          py::arg("n_threads") = 0);
+    m.def("rasterize_bwd", &rasterize_bwd, py::arg("means2d"), py::arg("conics"), py::arg("colors"),
+          py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
+          py::arg("tile_size"), py::arg("isect_offsets"), py::arg("flatten_ids"), py::arg("T_final"),
+          py::arg("last_ids"), py::arg("v_render_colors"), py::arg("v_render_alphas"), py::arg("cull") = true,
+          py::arg("mode") = 0, py::arg("n_threads") = 0);
+    m.def("isect_tiles", &isect_tiles, py::arg("means2d"), py::arg("radii"), py::arg("depths"),
+          py::arg("tile_size"), py::arg("tile_width"), py::arg("tile_height"), py::arg("n_threads") = 0);
+}
