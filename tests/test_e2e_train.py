@@ -1,4 +1,4 @@
-"""End to end on the CPU: ns-train stealth-splat-lite on a tiny scene, then ns-eval."""
+"""End to end on the CPU: ns-train stealth-splat-lite with the attack on a tiny scene, then ns-eval."""
 
 from __future__ import annotations
 
@@ -9,35 +9,35 @@ from conftest import run_cli
 
 
 @pytest.mark.slow
-def test_ns_train_then_ns_eval_on_cpu(tiny_orbit_scene, tmp_path):
+def test_ns_train_attack_then_ns_eval_on_cpu(tiny_orbit_scene, tmp_path):
     out = tmp_path / "runs"
     run_cli(
-        "ns-train",
-        "stealth-splat-lite",
-        "--vis",
-        "tensorboard",
-        "--output-dir",
-        str(out),
-        "--experiment-name",
-        "tiny",
-        "--timestamp",
-        "run",
-        "--max-num-iterations",
-        "40",
-        "--steps-per-eval-all-images",
-        "1000",
-        "nerfstudio-data",
-        "--data",
-        str(tiny_orbit_scene),
-    )
-    config = out / "tiny" / "stealth-splat-lite" / "run" / "config.yml"
-    assert config.exists()
-    assert list((config.parent / "nerfstudio_models").glob("step-*.ckpt"))
-    assert "device_type: cpu" in config.read_text() or "device_type: cuda" in config.read_text()
+        "ns-train", "stealth-splat-lite", "--vis", "tensorboard", "--output-dir", str(out),
+        "--experiment-name", "tiny", "--timestamp", "run", "--max-num-iterations", "60",
+        "--steps-per-eval-all-images", "1000", "--pipeline.attack.injection-step", "20",
+        "--pipeline.attack.illusion", "horse",
+        "nerfstudio-data", "--data", str(tiny_orbit_scene),
+    )  # fmt: skip
+    run_dir = out / "tiny" / "stealth-splat-lite" / "run"
+    config = run_dir / "config.yml"
+    assert list((run_dir / "nerfstudio_models").glob("step-*.ckpt"))
+
+    record = json.loads((run_dir / "attack" / "attack.json").read_text())
+    (view,) = record["poisoned_views"]
+    assert record["injected_at_step"] == 20
+    assert record["n_poison_gaussians"] == view["mask_pixels"] > 0
+    assert record["config"]["illusion"] == "horse"
+    for name in ("poison_points.ply", "density_grid.npz", f"view{view['index']:04d}_target.png"):
+        assert (run_dir / "attack" / name).exists(), name
 
     result_path = tmp_path / "eval.json"
     proc = run_cli("ns-eval", "--load-config", str(config), "--output-path", str(result_path))
     results = json.loads(result_path.read_text())["results"]
-    assert results["psnr"] > 12.0, results  # 40 iterations from SfM-like seed points: well above noise
+    assert results["psnr"] > 12.0, results  # 60 iterations from SfM-like seed points: well above noise
     assert 0.0 < results["ssim"] <= 1.0
+    assert results["v_illusory_psnr"] == results[f"v_illusory_psnr[{view['name']}]"]
+    assert 0.0 < results["v_illusory_ssim"] <= 1.0
+    assert "innocent_train_psnr" in results
+    if results.get("v_illusory_lpips") is None:
+        assert "AlexNet" in results["lpips_unavailable"]
     assert "Traceback" not in proc.stderr
