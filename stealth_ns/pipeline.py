@@ -87,8 +87,7 @@ def build_poison_views(cfg: AttackConfig, datamanager: StealthDataManager) -> li
         image = datamanager.cached_train[index]["image"]
         height, width = image.shape[:2]
         rgb, alpha = place_illusion(illusion, (height, width), cfg.illusion_center, cfg.illusion_scale)
-        clean = image[..., :3].float() / 255.0 if image.dtype == torch.uint8 else image[..., :3].float()
-        target = composite(clean, torch.as_tensor(rgb), torch.as_tensor(alpha))
+        target = composite(rgb_float(image), torch.as_tensor(rgb), torch.as_tensor(alpha))
         cam = cameras[index]
         views.append(
             PoisonView(
@@ -104,6 +103,12 @@ def build_poison_views(cfg: AttackConfig, datamanager: StealthDataManager) -> li
             )
         )
     return views
+
+
+def rgb_float(image: torch.Tensor) -> torch.Tensor:
+    """[H, W, 3 or 4] uint8 or float cached image -> [H, W, 3] float in [0, 1]."""
+    rgb = image[..., :3].float()
+    return rgb / 255.0 if image.dtype == torch.uint8 else rgb
 
 
 def _target_image(view: PoisonView, clean: torch.Tensor) -> torch.Tensor:
@@ -301,8 +306,7 @@ class StealthPipeline(VanillaPipeline):
         for index in range(len(cameras)):
             if index in poisoned:
                 continue
-            image = self.datamanager.cached_train[index]["image"]
-            clean = image[..., :3].float() / 255.0 if image.dtype == torch.uint8 else image[..., :3].float()
+            clean = rgb_float(self.datamanager.cached_train[index]["image"])
             pred = model.get_outputs(cameras[index : index + 1].to(self.device))["rgb"].float().cpu()
             mse = torch.mean((pred - clean) ** 2).item()
             innocent.append(10 * math.log10(1 / mse) if mse > 0 else math.inf)

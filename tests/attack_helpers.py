@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import torch
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.engine.optimizers import Optimizers
@@ -62,7 +61,3 @@ def reload(pipeline: StealthPipeline, scene: Path, attack: AttackConfig, step: i
     fresh = build_pipeline(scene, attack)
     fresh.load_pipeline(state, step)
     return fresh
-
-
-def as_float(image: torch.Tensor) -> torch.Tensor:
-    return image.float() / 255.0 if image.dtype == torch.uint8 else image.float()
