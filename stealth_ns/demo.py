@@ -53,10 +53,12 @@ class DemoResult:
             f"  clean run:      {self.clean.config}  ({self.clean.train_seconds:.0f} s)",
             f"  poisoned run:   {self.poisoned.config}  ({self.poisoned.train_seconds:.0f} s)",
             f"  attack files:   {self.poisoned.config.parent / 'attack'}",
-            f"  V-illusory:     PSNR {p['v_illusory_psnr']:.2f} dB, SSIM {p['v_illusory_ssim']:.3f} (masked, poisoned view)",
+            f"  V-illusory:     PSNR {p['v_illusory_psnr']:.2f} dB, SSIM {p['v_illusory_ssim']:.3f}"
+            " (masked, poisoned view)",
             f"  V-test PSNR:    clean {c['psnr']:.2f} dB, poisoned {p['psnr']:.2f} dB, drop {drop:.2f} dB",
             f"  attack success: {ok}  (V-illusory > 25 dB and drop <= 3 dB)",
-            f"  look at it:     ns-viewer --load-config {self.poisoned.config} --viewer.websocket-host 127.0.0.1",
+            f"  look at it:     ns-viewer --load-config {self.poisoned.config}"
+            " --viewer.websocket-host 127.0.0.1",
             "",
             NOT_YET,
         ]
