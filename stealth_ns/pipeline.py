@@ -136,7 +136,12 @@ class StealthPipeline(VanillaPipeline):
         self.attack_dir: Path | None = None
         self.attack_record: dict[str, Any] = {}
         cfg = config.attack
-        if not cfg.enabled or self.test_mode == "inference":
+        if self.test_mode == "inference":  # ns-viewer / ns-export: no training data needed
+            from stealth_ns.export import install_export_hook
+
+            install_export_hook(self.model)
+            return
+        if not cfg.enabled:
             return
         if not isinstance(self.datamanager, StealthDataManager) or not isinstance(
             self.model, StealthSplatModel

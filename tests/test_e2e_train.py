@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 
 import pytest
+import torch
 from conftest import run_cli
+from plyfile import PlyData
 
 
 @pytest.mark.slow
@@ -41,3 +43,15 @@ def test_ns_train_attack_then_ns_eval_on_cpu(tiny_orbit_scene, tmp_path):
     if results.get("v_illusory_lpips") is None:
         assert "AlexNet" in results["lpips_unavailable"]
     assert "Traceback" not in proc.stderr
+
+    # the poison tag survives ns-export: a `poison` property on exactly the tagged Gaussians
+    # that the exporter keeps (finite, opacity above 1/255)
+    export_dir = tmp_path / "export"
+    run_cli("ns-export", "gaussian-splat", "--load-config", str(config), "--output-dir", str(export_dir))
+    vertices = PlyData.read(str(export_dir / "splat.ply"))["vertex"]
+    assert "poison" in vertices.data.dtype.names
+    (ckpt,) = (run_dir / "nerfstudio_models").glob("step-*.ckpt")
+    state = torch.load(ckpt, map_location="cpu", weights_only=True)["pipeline"]
+    tags = state["_model.gauss_params.poison"] > 0.5
+    kept = state["_model.gauss_params.opacities"].squeeze(-1) > -5.5373
+    assert int(vertices["poison"].sum()) == int((tags & kept).sum()) > 0
