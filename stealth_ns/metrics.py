@@ -121,3 +121,30 @@ def masked_ssim(pred, target, mask) -> float:
     else:
         return 1.0 if np.array_equal(p, t) else float("nan")
     return float(structural_similarity(p, t, data_range=1.0, channel_axis=-1, **kw))
+
+
+def psnr(pred, target) -> float:
+    """PSNR (dB) over the whole image, images in [0, 1] of the same shape; ``inf`` if identical."""
+    mse = float(np.mean((_as_numpy(pred) - _as_numpy(target)) ** 2))
+    return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
+
+
+def illusion_metrics(pred, target, mask, lpips: LazyLPIPS | None = None) -> dict[str, float | None]:
+    """V-illusory metrics of one poisoned view: masked PSNR, masked SSIM and masked LPIPS.
+
+    Args:
+        pred: [H, W, 3] render in [0, 1]; target: [H, W, 3] illusion composite I_ILL in [0, 1].
+        mask: [H, W] bool illusion mask (non-empty).
+        lpips: LPIPS on the mask's bounding box (outside zeroed); None or unavailable -> None.
+
+    Returns:
+        ``{"psnr": dB, "ssim": [0, 1], "lpips": float or None}``.
+    """
+    value = None
+    if lpips is not None:
+        crop_pred, crop_target = masked_crops(pred, target, mask)
+        value = lpips(
+            torch.from_numpy(crop_pred).permute(2, 0, 1)[None],
+            torch.from_numpy(crop_target).permute(2, 0, 1)[None],
+        )
+    return {"psnr": masked_psnr(pred, target, mask), "ssim": masked_ssim(pred, target, mask), "lpips": value}

@@ -33,3 +33,23 @@ def tiny_orbit_scene(tmp_path_factory) -> Path:
 
     make_scene(preset="orbit", output=out, resolution="64x48", views=16, seed=0)
     return out
+
+
+def train_tiny(scene: Path, out: Path, name: str, *extra: str, iterations: int = 60) -> Path:
+    """ns-train stealth-splat-lite on a tiny scene (CPU, a minute at most); returns its config.yml."""
+    run_cli(
+        "ns-train", "stealth-splat-lite", "--vis", "tensorboard", "--output-dir", str(out),
+        "--experiment-name", "tiny", "--timestamp", name, "--max-num-iterations", str(iterations),
+        "--steps-per-eval-all-images", "100000", "--machine.seed", "0", *extra,
+        "nerfstudio-data", "--data", str(scene),
+    )  # fmt: skip
+    return out / "tiny" / "stealth-splat-lite" / name / "config.yml"
+
+
+@pytest.fixture(scope="session")
+def tiny_run_pair(tiny_orbit_scene, tmp_path_factory) -> tuple[Path, Path]:
+    """(poisoned, clean) config.yml of two 60-iteration runs on ``tiny_orbit_scene``."""
+    out = tmp_path_factory.mktemp("runs")
+    poisoned = train_tiny(tiny_orbit_scene, out, "poisoned", "--pipeline.attack.injection-step", "20")
+    clean = train_tiny(tiny_orbit_scene, out, "clean", "--pipeline.attack.enabled", "False")
+    return poisoned, clean

@@ -21,7 +21,7 @@ import torch
 
 from stealth_ns.errors import StealthNSError
 
-__all__ = ["median_view", "multi_view_indices", "scene_center", "scene_up", "resolve_views"]
+__all__ = ["median_view", "multi_view_indices", "scene_center", "scene_up", "resolve_views", "rotate_pose"]
 
 #: Target azimuths (degrees) of the multi-view attack, in the order they are used.
 MULTI_VIEW_ANGLES: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
@@ -82,6 +82,30 @@ def scene_center(camera_to_worlds) -> np.ndarray:
     if np.linalg.cond(a) > 1e6:
         return o.mean(axis=0)
     return np.linalg.solve(a, b)
+
+
+def rotate_pose(c2w, center, axis, degrees: float) -> np.ndarray:
+    """A camera orbited about the line through ``center`` along ``axis`` by ``degrees``, ``[3, 4]``.
+
+    Position and orientation turn together (right-handed about ``axis``), so a camera looking at
+    ``center`` keeps looking at it: the neighbour views of the paper's Fig. 8.
+
+    Args:
+        c2w: ``[3, 4]`` or ``[4, 4]`` camera-to-world (scene units).
+        center: ``[3]`` a point on the rotation axis; axis: ``[3]`` its direction (any length > 0).
+        degrees: rotation angle.
+    """
+    pose = _poses(np.asarray(c2w, dtype=np.float64)[None])[0]
+    k = np.asarray(axis, dtype=np.float64)
+    k = k / np.linalg.norm(k)
+    t = np.deg2rad(degrees)
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    rot = np.eye(3) + np.sin(t) * cross + (1.0 - np.cos(t)) * cross @ cross  # Rodrigues
+    c = np.asarray(center, dtype=np.float64)
+    out = np.empty((3, 4))
+    out[:, :3] = rot @ pose[:, :3]
+    out[:, 3] = rot @ (pose[:, 3] - c) + c
+    return out
 
 
 def multi_view_indices(

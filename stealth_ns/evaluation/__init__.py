@@ -1,0 +1,1 @@
+"""Evaluation: the attack report, the KDE difficulty protocol and the experiment runner."""

@@ -1,0 +1,575 @@
+"""The attack report: a poisoned run against a clean run of the same scene.
+
+``compare_runs`` loads both runs (nerfstudio's ``eval_setup``), renders them and returns the
+paper's numbers: V-illusory (masked metrics of the poisoned view against the illusion target
+I_ILL), V-test (held-out views against the clean images) for both runs and its drop, the
+success verdicts (paper: V-illusory PSNR > 25 dB and drop <= 3 dB; appendix: 25/8, 20/9,
+15/10). ``write_report`` adds the pictures: the poisoned views (target, poisoned render,
+clean render, poisoned render with the poison Gaussians hidden), a strip of held-out views
+(clean vs poisoned), and the neighbour-view curve of the paper's Fig. 8 (PSNR between the
+clean and poisoned renders of cameras orbited up to +-20 degrees from each poisoned view), as
+``report.json``, PNGs, and a self-contained ``report.html`` that references them.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import html
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from stealth_ns.attack.illusion import save_png
+from stealth_ns.attack.views import rotate_pose, scene_center, scene_up
+from stealth_ns.errors import StealthNSError
+from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr
+
+#: (V-illusory PSNR above, V-test drop at most) pairs: the paper's rule first, then its appendix's.
+SUCCESS_THRESHOLDS: tuple[tuple[float, float], ...] = ((25.0, 3.0), (25.0, 8.0), (20.0, 9.0), (15.0, 10.0))
+#: Neighbour-view angles (degrees) about the scene's vertical axis, as the paper's Fig. 8.
+NEIGHBOUR_ANGLES: tuple[float, ...] = tuple(float(a) for a in np.arange(-20.0, 20.01, 2.5))
+#: Held-out views shown in the report's strip.
+STRIP_VIEWS = 6
+
+
+def attack_success(
+    v_illusory_psnr: float, v_test_drop: float, psnr_min: float = 25.0, drop_max: float = 3.0
+) -> bool:
+    """The paper's rule (section 4): V-illusory PSNR > ``psnr_min`` and V-test drop <= ``drop_max`` (dB)."""
+    return v_illusory_psnr > psnr_min and v_test_drop <= drop_max
+
+
+def success_verdicts(v_illusory_psnr: float, v_test_drop: float) -> dict[str, bool]:
+    """``{"25/3": ..., "25/8": ..., "20/9": ..., "15/10": ...}`` for every pair in SUCCESS_THRESHOLDS."""
+    return {f"{p:g}/{d:g}": attack_success(v_illusory_psnr, v_test_drop, p, d) for p, d in SUCCESS_THRESHOLDS}
+
+
+# ---------------------------------------------------------------------------- loading runs
+@dataclass
+class LoadedRun:
+    """A trained run loaded for evaluation."""
+
+    config_path: Path
+    pipeline: Any  # a nerfstudio Pipeline (a StealthPipeline for the poisoned run)
+    step: int
+
+    @property
+    def model(self) -> Any:
+        return self.pipeline.model
+
+    @property
+    def train_names(self) -> list[str]:
+        return [Path(p).name for p in self.pipeline.datamanager.train_dataparser_outputs.image_filenames]
+
+    @property
+    def attack_enabled(self) -> bool:
+        attack = getattr(self.pipeline.config, "attack", None)
+        return bool(attack is not None and attack.enabled)
+
+
+def load_run(config_path: Path) -> LoadedRun:
+    """``eval_setup`` for a run folder's ``config.yml``, with one-line errors for the usual mistakes.
+
+    The checkpoint is looked up next to the config file, so a run folder that was moved (or a
+    relative ``--output-dir``) still loads.
+    """
+    from nerfstudio.utils.eval_utils import eval_setup
+
+    config_path = Path(config_path)
+    if config_path.is_dir():
+        config_path = config_path / "config.yml"
+    if not config_path.is_file():
+        raise StealthNSError(f"no run config at {config_path} (give the config.yml of a training run)")
+    models = config_path.parent / "nerfstudio_models"
+    if not models.is_dir() or not any(models.glob("*.ckpt")):
+        raise StealthNSError(
+            f"{config_path.parent} has no checkpoint (nerfstudio_models/*.ckpt): not trained?"
+        )
+
+    def relocate(config: Any) -> Any:
+        config.output_dir = config_path.parent.resolve()
+        config.experiment_name, config.method_name, config.timestamp = ".", ".", "."
+        data = Path(config.pipeline.datamanager.data or config.pipeline.datamanager.dataparser.data)
+        if not data.exists():
+            raise StealthNSError(
+                f"the scene of {config_path} is not at {data} (was the run trained from another folder?)"
+            )
+        return config
+
+    try:
+        _, pipeline, _, step = eval_setup(config_path, test_mode="test", update_config_callback=relocate)
+    except SystemExit as err:  # the pipeline's own one-line errors
+        raise StealthNSError(str(err).removeprefix("stealth-ns: error: ")) from None
+    return LoadedRun(config_path, pipeline, step)
+
+
+@torch.no_grad()
+def render(
+    run: LoadedRun, cameras: Any, index: int, c2w: np.ndarray | None = None, **filters: str
+) -> np.ndarray:
+    """Render camera ``index`` of ``cameras`` (optionally moved to ``c2w`` [3, 4]) -> [H, W, 3] in [0, 1].
+
+    ``filters``: ``render_filter="hide_poison"`` etc. for a StealthSplatModel.
+    """
+    model = run.model
+    camera = cameras[index : index + 1]
+    if c2w is not None:
+        camera = camera.to("cpu")
+        camera.camera_to_worlds = torch.as_tensor(c2w, dtype=torch.float32)[None]
+    model.eval()
+    previous = getattr(model, "render_filter", "all")
+    if filters:
+        model.render_filter = filters["render_filter"]
+    try:
+        rgb = model.get_outputs(camera.to(model.device))["rgb"]
+    finally:
+        if filters:
+            model.render_filter = previous
+    return rgb.float().clamp(0, 1).cpu().numpy()
+
+
+def _rgb(image: torch.Tensor) -> np.ndarray:
+    rgb = image[..., :3].float()
+    return (rgb / 255.0 if image.dtype == torch.uint8 else rgb).numpy()
+
+
+# ---------------------------------------------------------------------------- the numbers
+@dataclass
+class RunPair:
+    """A poisoned run and a clean run of the same scene, loaded."""
+
+    poisoned: LoadedRun
+    clean: LoadedRun
+
+    @classmethod
+    def load(cls, poisoned: Path, clean: Path) -> RunPair:
+        pair = cls(load_run(poisoned), load_run(clean))
+        if not pair.poisoned.attack_enabled or not getattr(pair.poisoned.pipeline, "poison_views", None):
+            raise StealthNSError(f"{poisoned} is not an attacked run (trained with the attack disabled?)")
+        if pair.clean.attack_enabled:
+            raise StealthNSError(
+                f"{clean} was trained with the attack on; train the clean run with "
+                "--pipeline.attack.enabled False (or any other splatting method)"
+            )
+        if pair.poisoned.train_names != pair.clean.train_names:
+            raise StealthNSError(
+                "the two runs were not trained on the same scene (their training images differ)"
+            )
+        return pair
+
+    @property
+    def views(self) -> list[Any]:
+        return self.poisoned.pipeline.poison_views
+
+    @property
+    def cameras(self) -> Any:
+        return self.poisoned.pipeline.datamanager.train_dataset.cameras
+
+
+def _held_out_metrics(run: LoadedRun) -> dict[str, float | None]:
+    """nerfstudio's V-test metrics (held-out split) of one run, LPIPS None when unavailable."""
+    from nerfstudio.pipelines.base_pipeline import VanillaPipeline
+
+    metrics = VanillaPipeline.get_average_eval_image_metrics(run.pipeline)
+    return {k: (float(metrics[k]) if k in metrics else None) for k in ("psnr", "ssim", "lpips")}
+
+
+def _mean(values: list[float | None]) -> float | None:
+    finite = [v for v in values if v is not None]
+    return float(np.mean(finite)) if finite and len(finite) == len(values) else None
+
+
+def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None) -> dict[str, Any]:
+    """The report's numbers (see the module docstring); keys documented in docs/evaluation.md."""
+    lpips = lpips if lpips is not None else LazyLPIPS()
+    per_view: dict[str, dict[str, float | None]] = {}
+    for v in pair.views:
+        ours = illusion_metrics(render(pair.poisoned, pair.cameras, v.index), v.target, v.mask, lpips)
+        naive = illusion_metrics(render(pair.clean, pair.cameras, v.index), v.target, v.mask, lpips)
+        per_view[v.name] = {**ours, **{f"clean_{k}": x for k, x in naive.items()}}
+    out: dict[str, Any] = {}
+    for key in ("psnr", "ssim", "lpips"):
+        out[f"v_illusory_{key}"] = _mean([m[key] for m in per_view.values()])
+        out[f"v_illusory_clean_{key}"] = _mean([m[f"clean_{key}"] for m in per_view.values()])
+    test, test_clean = _held_out_metrics(pair.poisoned), _held_out_metrics(pair.clean)
+    for key in ("psnr", "ssim", "lpips"):
+        out[f"v_test_{key}"] = test[key]
+        out[f"v_test_{key}_clean"] = test_clean[key]
+    out["v_test_drop"] = out["v_test_psnr_clean"] - out["v_test_psnr"]
+    out["attack_success"] = attack_success(out["v_illusory_psnr"], out["v_test_drop"])
+    out["success_thresholds"] = success_verdicts(out["v_illusory_psnr"], out["v_test_drop"])
+    out["lpips_unavailable"] = None if lpips.available else lpips.reason
+    model = pair.poisoned.model
+    out["n_gaussians"] = int(model.num_points)
+    out["n_gaussians_clean"] = int(pair.clean.model.num_points)
+    out["n_poison_gaussians"] = int(model.poison_mask.sum()) if hasattr(model, "poison_mask") else 0
+    out["poisoned_views"] = list(per_view)
+    out["v_illusory_per_view"] = per_view
+    out["step"], out["step_clean"] = pair.poisoned.step, pair.clean.step
+    return out
+
+
+def compare_runs(poisoned_config: Path, clean_config: Path) -> dict[str, Any]:
+    """Load a poisoned and a clean run of the same scene and return :func:`pair_metrics` (no files)."""
+    return pair_metrics(RunPair.load(Path(poisoned_config), Path(clean_config)))
+
+
+def neighbour_curve(pair: RunPair, angles: tuple[float, ...] = NEIGHBOUR_ANGLES) -> dict[str, Any]:
+    """PSNR (dB) between the clean and the poisoned render of each poisoned view orbited by ``angles``
+    (degrees) about the vertical axis through the scene centre; mean over poisoned views per angle."""
+    c2ws = pair.cameras.camera_to_worlds
+    center, up = scene_center(c2ws), scene_up(c2ws)
+    per_view = {}
+    for v in pair.views:
+        base = c2ws[v.index].double().numpy()
+        values = []
+        for angle in angles:
+            pose = rotate_pose(base, center, up, angle)
+            values.append(
+                psnr(
+                    render(pair.poisoned, pair.cameras, v.index, pose),
+                    render(pair.clean, pair.cameras, v.index, pose),
+                )
+            )
+        per_view[v.name] = values
+    mean = [float(np.mean([vals[i] for vals in per_view.values()])) for i in range(len(angles))]
+    return {"angles_deg": list(angles), "psnr_mean": mean, "per_view": per_view}
+
+
+# ---------------------------------------------------------------------------- the report
+def _json_safe(obj: Any) -> Any:
+    """Non-finite floats -> None (strict JSON); numpy scalars -> Python."""
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _figure_grid(path: Path, rows: list[list[tuple[str, np.ndarray]]]) -> Path:
+    """A PNG of images in a grid with a title above each (matplotlib, Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_rows, n_cols = len(rows), max(len(r) for r in rows)
+    h, w = rows[0][0][1].shape[:2]
+    fig, axes = plt.subplots(
+        n_rows, n_cols, figsize=(2.6 * n_cols, 2.6 * n_rows * h / w + 0.4), squeeze=False
+    )
+    for ax in axes.flat:
+        ax.axis("off")
+    for r, row in enumerate(rows):
+        for c, (title, image) in enumerate(row):
+            axes[r][c].imshow(image, interpolation="nearest")
+            axes[r][c].set_title(title, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _plot_neighbour_curve(path: Path, curve: dict[str, Any]) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.4))
+    angles = curve["angles_deg"]
+    for name, values in curve["per_view"].items():
+        if len(curve["per_view"]) > 1:
+            ax.plot(angles, values, lw=1, alpha=0.5, label=name)
+    ax.plot(angles, curve["psnr_mean"], "o-", color="C3", lw=2, label="mean over poisoned views")
+    ax.axvspan(-5, 5, color="0.9", zorder=0)
+    ax.set_xlabel("rotation from the poisoned view (degrees)")
+    ax.set_ylabel("PSNR clean vs poisoned (dB)")
+    ax.set_title("Effect on neighbouring views")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _innocent_strip(pair: RunPair, images: Path) -> list[dict[str, Any]]:
+    """Up to STRIP_VIEWS held-out views, evenly spaced: ground truth, clean and poisoned renders."""
+    dm = pair.poisoned.pipeline.datamanager
+    cameras, n = dm.eval_dataset.cameras, len(dm.eval_dataset)
+    names = [Path(p).name for p in dm.eval_dataset.image_filenames]
+    picks = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(STRIP_VIEWS, n))}) if n else []
+    strip = []
+    for i in picks:
+        gt = _rgb(dm.cached_eval[i]["image"])
+        clean, poisoned = render(pair.clean, cameras, i), render(pair.poisoned, cameras, i)
+        files = {}
+        for kind, image in (("gt", gt), ("clean", clean), ("poisoned", poisoned)):
+            files[kind] = f"images/heldout{i:03d}_{kind}.png"
+            save_png(images.parent / files[kind], image)
+        strip.append(
+            {
+                "name": names[i],
+                "psnr_clean": psnr(clean, gt),
+                "psnr_poisoned": psnr(poisoned, gt),
+                "psnr_clean_vs_poisoned": psnr(poisoned, clean),
+                "images": files,
+                "arrays": (gt, clean, poisoned),
+            }
+        )
+    return strip
+
+
+def write_report(poisoned_config: Path, clean_config: Path, output: Path) -> dict[str, Any]:
+    """Compare the runs and write ``report.json``, ``report.html`` and PNGs into ``output``."""
+    output = Path(output)
+    if output.exists() and not output.is_dir():
+        raise StealthNSError(f"--output {output} is a file, not a folder")
+    pair = RunPair.load(Path(poisoned_config), Path(clean_config))
+    images = output / "images"
+    images.mkdir(parents=True, exist_ok=True)
+    report = pair_metrics(pair)
+    report["poisoned_run"] = str(pair.poisoned.config_path.resolve())
+    report["clean_run"] = str(pair.clean.config_path.resolve())
+    report["created"] = _dt.datetime.now().isoformat(timespec="seconds")
+
+    view_rows, view_files = [], {}
+    for v in pair.views:
+        panels = {
+            "target": v.target.numpy(),
+            "poisoned": render(pair.poisoned, pair.cameras, v.index),
+            "clean": render(pair.clean, pair.cameras, v.index),
+            "poison_hidden": render(pair.poisoned, pair.cameras, v.index, render_filter="hide_poison"),
+            "mask": np.repeat(v.mask.numpy()[..., None].astype(np.float32), 3, -1),
+        }
+        files = {}
+        for kind, image in panels.items():
+            files[kind] = f"images/view{v.index:04d}_{kind}.png"
+            save_png(output / files[kind], image)
+        view_files[v.name] = files
+        m = report["v_illusory_per_view"][v.name]
+        view_rows.append(
+            [
+                (f"{v.name}: target I_ILL", panels["target"]),
+                (f"poisoned render ({m['psnr']:.2f} dB)", panels["poisoned"]),
+                (f"clean render ({m['clean_psnr']:.2f} dB)", panels["clean"]),
+                ("poisoned, poison hidden", panels["poison_hidden"]),
+                ("illusion mask", panels["mask"]),
+            ]
+        )
+    _figure_grid(output / "poisoned_views.png", view_rows)
+
+    strip = _innocent_strip(pair, images)
+    if strip:
+        kinds = ("ground truth", "clean", "poisoned")
+        rows = [[(f"{s['name']} {kind}", s["arrays"][k]) for s in strip] for k, kind in enumerate(kinds)]
+        _figure_grid(output / "heldout_views.png", rows)
+    for s in strip:
+        del s["arrays"]
+    curve = neighbour_curve(pair)
+    _plot_neighbour_curve(output / "neighbour_curve.png", curve)
+
+    report["neighbour_views"] = curve
+    report["heldout_strip"] = strip
+    report["images"] = {
+        "poisoned_views": view_files,
+        "figures": {
+            "poisoned_views": "poisoned_views.png",
+            "heldout_views": "heldout_views.png" if strip else None,
+            "neighbour_curve": "neighbour_curve.png",
+        },
+    }
+    report = _json_safe(report)
+    (output / "report.json").write_text(json.dumps(report, indent=2))
+    (output / "report.html").write_text(render_html(report))
+    return report
+
+
+def summary_lines(report: dict[str, Any], output: Path) -> list[str]:
+    """The headline numbers of a report, for the terminal."""
+    r = report
+    lines = [
+        f"V-illusory:  PSNR {_fmt(r['v_illusory_psnr'])} dB, SSIM {_fmt(r['v_illusory_ssim'], 3)}, "
+        f"LPIPS {_fmt(r['v_illusory_lpips'], 3)}  (clean run: {_fmt(r['v_illusory_clean_psnr'])} dB)",
+        f"V-test PSNR: clean {_fmt(r['v_test_psnr_clean'])} dB, poisoned {_fmt(r['v_test_psnr'])} dB, "
+        f"drop {_fmt(r['v_test_drop'])} dB",
+        f"attack success: {r['attack_success']}  (V-illusory > 25 dB and drop <= 3 dB); "
+        + ", ".join(f"{k}: {v}" for k, v in r["success_thresholds"].items() if k != "25/3"),
+    ]
+    if r.get("lpips_unavailable"):
+        lines.append(f"LPIPS unavailable: {r['lpips_unavailable']}")
+    lines.append(f"report: {Path(output).resolve() / 'report.html'}")
+    return lines
+
+
+# ---------------------------------------------------------------------------- HTML
+_CSS = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
+h1 { margin-bottom: 0.2em; } h2 { margin-top: 1.6em; border-bottom: 1px solid #ddd; }
+table { border-collapse: collapse; margin: 0.6em 0; } td, th { padding: 4px 10px; border: 1px solid #ccc; }
+th { background: #f4f4f4; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
+.verdict { display: inline-block; padding: 6px 14px; border-radius: 4px; font-weight: bold; color: #fff; }
+.ok { background: #2a7d2a; } .fail { background: #b03030; }
+.row { display: flex; gap: 6px; overflow-x: auto; }
+figure { margin: 4px 0; text-align: center; font-size: 12px; }
+figure img { width: 200px; image-rendering: pixelated; border: 1px solid #ccc; }
+.strip figure img { width: 170px; }
+.small { color: #666; font-size: 13px; } code { background: #f4f4f4; padding: 1px 4px; }
+"""
+
+
+def _fmt(value: Any, digits: int = 2) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return html.escape(str(value))
+
+
+def _table(header: list[str], rows: list[list[Any]], digits: int = 2) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join(
+        "<tr>"
+        + "".join(
+            f'<td class="num">{_fmt(c, digits)}</td>'
+            if isinstance(c, float | int) and not isinstance(c, bool)
+            else f"<td>{_fmt(c, digits)}</td>"
+            for c in row
+        )
+        + "</tr>"
+        for row in rows
+    )
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _figure(src: str, caption: str) -> str:
+    src, caption = html.escape(src), html.escape(caption)
+    return f'<figure><img src="{src}" alt="{caption}"><figcaption>{caption}</figcaption></figure>'
+
+
+def render_html(report: dict[str, Any]) -> str:
+    """A self-contained page (inline CSS, images referenced relative to the report folder)."""
+    r = report
+    ok = bool(r["attack_success"])
+    verdict = "attack succeeded" if ok else "attack failed"
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>StealthAttack report</title>",
+        f"<style>{_CSS}</style></head><body>",
+        "<h1>StealthAttack report</h1>",
+        f"<p class='small'>poisoned run <code>{html.escape(r['poisoned_run'])}</code> (step {r['step']})<br>"
+        f"clean run <code>{html.escape(r['clean_run'])}</code> (step {r['step_clean']})<br>"
+        f"written {html.escape(r['created'])}</p>",
+        f"<p><span class='verdict {'ok' if ok else 'fail'}'>{verdict}</span> &nbsp; "
+        f"V-illusory PSNR {_fmt(r['v_illusory_psnr'])} dB (needs &gt; 25), "
+        f"V-test drop {_fmt(r['v_test_drop'])} dB (needs &le; 3)</p>",
+        "<h2>Metrics</h2>",
+        _table(
+            ["", "V-illusory PSNR ↑", "SSIM ↑", "LPIPS ↓", "V-test PSNR ↑", "SSIM ↑", "LPIPS ↓", "Gaussians"],
+            [
+                [
+                    "clean 3DGS (no attack)",
+                    r["v_illusory_clean_psnr"],
+                    r["v_illusory_clean_ssim"],
+                    r["v_illusory_clean_lpips"],
+                    r["v_test_psnr_clean"],
+                    r["v_test_ssim_clean"],
+                    r["v_test_lpips_clean"],
+                    r["n_gaussians_clean"],
+                ],
+                [
+                    "poisoned (StealthAttack)",
+                    r["v_illusory_psnr"],
+                    r["v_illusory_ssim"],
+                    r["v_illusory_lpips"],
+                    r["v_test_psnr"],
+                    r["v_test_ssim"],
+                    r["v_test_lpips"],
+                    r["n_gaussians"],
+                ],
+            ],
+            digits=3,
+        ),
+        "<p class='small'>V-illusory: masked metrics of the poisoned-view render against the illusion target "
+        f"(PSNR over the mask's pixels, SSIM and LPIPS on the mask's bounding box, outside zeroed). "
+        f"V-test: held-out views against their clean images. {r['n_poison_gaussians']} of the poisoned run's "
+        f"Gaussians are poison.</p>",
+    ]
+    if r.get("lpips_unavailable"):
+        parts.append(f"<p class='small'>LPIPS unavailable: {html.escape(r['lpips_unavailable'])}</p>")
+    parts += [
+        "<h3>Success under the paper's thresholds</h3>",
+        _table(
+            ["V-illusory PSNR >", "V-test drop ≤", "success"],
+            [[*key.split("/"), value] for key, value in r["success_thresholds"].items()],
+        ),
+        "<h3>Per poisoned view</h3>",
+        _table(
+            ["view", "PSNR", "SSIM", "LPIPS", "clean PSNR", "clean SSIM", "clean LPIPS"],
+            [
+                [name, m["psnr"], m["ssim"], m["lpips"], m["clean_psnr"], m["clean_ssim"], m["clean_lpips"]]
+                for name, m in r["v_illusory_per_view"].items()
+            ],
+            digits=3,
+        ),
+        "<h2>Poisoned views</h2>",
+    ]
+    for name, files in r["images"]["poisoned_views"].items():
+        m = r["v_illusory_per_view"][name]
+        parts.append(f"<h3>{html.escape(name)}</h3><div class='row'>")
+        parts += [
+            _figure(files["target"], "target (illusion composite)"),
+            _figure(files["poisoned"], f"poisoned render, {_fmt(m['psnr'])} dB in the mask"),
+            _figure(files["clean"], f"clean render, {_fmt(m['clean_psnr'])} dB in the mask"),
+            _figure(files["poison_hidden"], "poisoned run with poison Gaussians hidden"),
+            _figure(files["mask"], "illusion mask"),
+            "</div>",
+        ]
+    if r["heldout_strip"]:
+        parts.append(
+            "<h2>Innocent (held-out) views</h2><p class='small'>rows: ground truth, clean, poisoned</p>"
+        )
+        for kind in ("gt", "clean", "poisoned"):
+            parts.append("<div class='row strip'>")
+            for s in r["heldout_strip"]:
+                psnr_txt = {
+                    "gt": s["name"],
+                    "clean": f"clean {_fmt(s['psnr_clean'])} dB",
+                    "poisoned": f"poisoned {_fmt(s['psnr_poisoned'])} dB",
+                }[kind]
+                parts.append(_figure(s["images"][kind], psnr_txt))
+            parts.append("</div>")
+    curve = r["neighbour_views"]
+    parts += [
+        "<h2>Neighbouring views</h2>",
+        "<p class='small'>PSNR between the clean and the poisoned render of cameras orbited about the "
+        "scene's "
+        "vertical axis from each poisoned view (the paper's Fig. 8): the attack should matter only within "
+        "a few degrees.</p>",
+        _figure(r["images"]["figures"]["neighbour_curve"], "PSNR clean vs poisoned by angle").replace(
+            "<img ", '<img style="width:600px" '
+        ),
+        _table(
+            ["angle (°)", *[f"{a:g}" for a in curve["angles_deg"]]],
+            [["PSNR (dB)", *curve["psnr_mean"]]],
+            digits=1,
+        ),
+        "<h2>Figures</h2><p class='small'>"
+        + ", ".join(
+            f"<a href='{html.escape(v)}'>{html.escape(v)}</a>" for v in r["images"]["figures"].values() if v
+        )
+        + ", <a href='report.json'>report.json</a></p>",
+        "</body></html>",
+    ]
+    return "\n".join(parts)

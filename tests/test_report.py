@@ -1,0 +1,85 @@
+"""The attack report: success rule, neighbour-view poses, HTML, and `stealth-ns report` on two tiny runs."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+from stealth_ns.attack.views import rotate_pose
+from stealth_ns.evaluation.report import attack_success, success_verdicts
+
+REQUIRED_KEYS = {
+    "v_illusory_psnr",
+    "v_illusory_ssim",
+    "v_illusory_lpips",
+    "v_test_psnr",
+    "v_test_psnr_clean",
+    "v_test_drop",
+    "attack_success",
+    "success_thresholds",
+    "v_illusory_clean_psnr",
+    "neighbour_views",
+}
+
+
+def test_success_rule_and_extended_thresholds():
+    assert attack_success(25.1, 3.0) and not attack_success(25.0, 1.0) and not attack_success(30.0, 3.01)
+    assert success_verdicts(22.0, 8.5) == {"25/3": False, "25/8": False, "20/9": True, "15/10": True}
+
+
+def test_rotate_pose_orbits_position_and_keeps_looking_at_the_centre():
+    center, up = np.array([0.0, 0.0, 0.5]), np.array([0.0, 0.0, 2.0])
+    # camera at (2, 0, 0.5) looking at the centre along -X: OpenGL camera -Z = world -X
+    c2w = np.array([[0.0, 0.0, 1.0, 2.0], [1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.5]])
+    moved = rotate_pose(c2w, center, up, 90.0)
+    assert np.allclose(moved[:, 3], [0.0, 2.0, 0.5])
+    view_dir = -moved[:, 2]
+    assert np.allclose(view_dir, (center - moved[:, 3]) / 2.0)
+    assert np.allclose(moved[:, :3] @ moved[:, :3].T, np.eye(3))
+    assert np.allclose(rotate_pose(moved, center, up, -90.0), c2w)
+
+
+@pytest.mark.slow
+def test_report_on_two_tiny_runs(tiny_run_pair, tmp_path):
+    poisoned, clean = tiny_run_pair
+    out = tmp_path / "report"
+    proc = run_cli(
+        "stealth-ns", "report", "--poisoned", str(poisoned), "--clean", str(clean), "--output", str(out)
+    )
+    assert "attack success:" in proc.stdout and str(out.resolve() / "report.html") in proc.stdout
+    report = json.loads((out / "report.json").read_text())
+    assert REQUIRED_KEYS <= report.keys()
+    assert report["v_test_drop"] == pytest.approx(report["v_test_psnr_clean"] - report["v_test_psnr"])
+    assert set(report["success_thresholds"]) == {"25/3", "25/8", "20/9", "15/10"}
+    assert report["attack_success"] == (report["v_illusory_psnr"] > 25 and report["v_test_drop"] <= 3)
+    # 20 iterations of training on the illusion target already beat the clean model on it
+    assert report["v_illusory_psnr"] > report["v_illusory_clean_psnr"]
+    assert report["n_poison_gaussians"] > 0
+    curve = report["neighbour_views"]
+    assert len(curve["angles_deg"]) == len(curve["psnr_mean"]) and 0.0 in curve["angles_deg"]
+    if report["v_illusory_lpips"] is None:
+        assert report["lpips_unavailable"]
+
+    page = (out / "report.html").read_text()
+    sources = re.findall(r'src="([^"]+)"', page)
+    assert len(sources) >= 5 + 3  # poisoned-view panels + a held-out strip + the curve
+    for src in sources:
+        assert (out / src).is_file(), src
+    for png in ("poisoned_views.png", "neighbour_curve.png", "heldout_views.png"):
+        assert (out / png).stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_report_errors_are_one_line(tiny_run_pair, tmp_path):
+    poisoned, clean = tiny_run_pair
+    swapped = run_cli("stealth-ns", "report", "--poisoned", str(clean), "--clean", str(poisoned), check=False)
+    assert swapped.returncode == 2 and "not an attacked run" in swapped.stderr
+    assert "Traceback" not in swapped.stderr
+    missing = run_cli(
+        "stealth-ns", "report", "--poisoned", str(tmp_path / "nope"), "--clean", str(clean), check=False
+    )
+    assert missing.returncode == 2 and "no run config" in missing.stderr
