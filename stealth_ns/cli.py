@@ -14,6 +14,7 @@ from typing import Literal
 import tyro
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.evaluation.difficulty import RankViews
 
 
 @dataclass
@@ -84,12 +85,67 @@ class BenchRaster:
         run_raster_benchmark(json_path=self.json, threads=self.threads, **kwargs)
 
 
+@dataclass
+class Report:
+    """Compare a poisoned run with a clean run of the same scene: report.json, report.html, PNGs."""
+
+    poisoned: Path
+    """config.yml (or run folder) of the attacked run."""
+    clean: Path
+    """config.yml (or run folder) of a clean run of the same scene (--pipeline.attack.enabled False)."""
+    output: Path = Path("stealth-report")
+    """Folder to write report.json, report.html, the figures and images/."""
+
+    def main(self) -> None:
+        from stealth_ns.evaluation.report import summary_lines, write_report
+
+        report = write_report(self.poisoned, self.clean, self.output)
+        print("\n".join(summary_lines(report, self.output)))
+
+
+@dataclass
+class BenchAttack:
+    """Reproduce the paper's Tables 1-6 on the generated scenes: train the runs, write the tables."""
+
+    output: Path = Path("bench-attack-output")
+    """Folder for the scenes, the runs (reused when finished), tables.md and results.json."""
+    tables: tuple[str, ...] = ("1", "2", "3", "4", "5", "6")
+    """Paper tables to reproduce: 1 single view, 2 Easy/Median/Hard, 3 multi-view, 4 KDE bandwidth,
+    5 noise schedule, 6 attack components (with ASR)."""
+    scenes: tuple[str, ...] = ("orbit", "forward")
+    """Generated scenes: orbit (360°, Mip-NeRF 360-like), forward (free trajectory, Free-like)."""
+    iterations: int | None = None
+    """Training iterations of every run (default: the method's, 3000 for stealth-splat-lite)."""
+    method: str = "stealth-splat-lite"
+    """stealth-splat-lite (small scenes, CPU) or stealth-splat."""
+    seed: int = 0
+    """Seed of the scenes, the training and the attack's noise."""
+    dry_run: bool = False
+    """Only list the runs: which would train, which are reused, with their ns-train commands."""
+
+    def main(self) -> None:
+        from stealth_ns.evaluation.experiments import run_bench
+
+        run_bench(
+            output=self.output,
+            tables=self.tables,
+            scenes=self.scenes,
+            method=self.method,
+            iterations=self.iterations,
+            seed=self.seed,
+            dry_run=self.dry_run,
+        )
+
+
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
 # tyro union) so that every command, nested ones included, gets its own --help.
 COMMANDS: dict[str, type] = {
     "make-scene": MakeScene,
     "demo": Demo,
+    "report": Report,
     "bench raster": BenchRaster,
+    "bench attack": BenchAttack,
+    "rank-views": RankViews,
 }
 
 

@@ -48,11 +48,3 @@ def test_bench_raster_json_into_missing_folder_is_an_error(tmp_path):
         "stealth-ns", "bench", "raster", "--quick", "--json", str(tmp_path / "nope" / "b.json"), check=False
     )
     assert proc.returncode == 2 and "does not exist" in proc.stderr
-
-
-def test_attack_success_rule_is_the_papers():
-    from stealth_ns.demo import attack_success
-
-    assert attack_success(25.01, 3.0)
-    assert not attack_success(25.0, 0.0)  # strictly above 25 dB
-    assert not attack_success(32.0, 3.01)

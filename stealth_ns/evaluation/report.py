@@ -16,7 +16,6 @@ from __future__ import annotations
 import datetime as _dt
 import html
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,6 +26,7 @@ import torch
 from stealth_ns.attack.illusion import save_png
 from stealth_ns.attack.views import rotate_pose, scene_center, scene_up
 from stealth_ns.errors import StealthNSError
+from stealth_ns.evaluation.runs import json_safe
 from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr
 
 #: (V-illusory PSNR above, V-test drop at most) pairs: the paper's rule first, then its appendix's.
@@ -242,19 +242,6 @@ def neighbour_curve(pair: RunPair, angles: tuple[float, ...] = NEIGHBOUR_ANGLES)
 
 
 # ---------------------------------------------------------------------------- the report
-def _json_safe(obj: Any) -> Any:
-    """Non-finite floats -> None (strict JSON); numpy scalars -> Python."""
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def _figure_grid(path: Path, rows: list[list[tuple[str, np.ndarray]]]) -> Path:
     """A PNG of images in a grid with a title above each (matplotlib, Agg)."""
     import matplotlib
@@ -389,7 +376,7 @@ def write_report(poisoned_config: Path, clean_config: Path, output: Path) -> dic
             "neighbour_curve": "neighbour_curve.png",
         },
     }
-    report = _json_safe(report)
+    report = json_safe(report)
     (output / "report.json").write_text(json.dumps(report, indent=2))
     (output / "report.html").write_text(render_html(report))
     return report

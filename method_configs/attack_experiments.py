@@ -1,0 +1,324 @@
+"""Presets of ``stealth-ns bench attack``: the runs and tables of the paper's experiments.
+
+Installed as ``stealth_ns.method_configs.attack_experiments``. Everything here is declarative:
+
+* :data:`RUNS` -- every training run, one :class:`RunSpec` per (scene, name). A run that several
+  tables show is defined once: ``full`` (all three components, h = 7.5, sigma0 = 100, linear
+  decay, the median-indexed view) is Table 1's orbit "Ours", Table 4's h = 7.5, Table 5's
+  100/linear and Table 6's last row. Every attack run spells out all the settings the tables
+  vary, so a run never depends on the attack's defaults.
+* :data:`TABLES` -- the paper's Tables 1-6 (:class:`TableSpec`): column groups (a scene, or a
+  difficulty level of one scene) and rows, each naming the run it shows in each group.
+
+Scenes are the generated presets: ``orbit`` stands in for the paper's Mip-NeRF 360 (inward
+360 degree captures; the paper poisons the median-indexed frame) and ``forward`` for its Free
+dataset (free trajectories; views picked by the KDE difficulty protocol: Easy / Median /
+Hard). As in the paper, Table 1's Free column is the Median view of Table 2.
+
+The paper's baselines -- IPA-NeRF (Nerfacto), IPA-NeRF (Instant-NGP) and IPA-Splat -- are not
+implemented in stealth-ns: no table here has rows for them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+#: The scene presets of ``stealth_ns.scenes`` the experiments run on.
+SCENES: tuple[str, ...] = ("orbit", "forward")
+SCENE_LABELS: dict[str, str] = {
+    "orbit": "orbit (360°, Mip-NeRF 360-like)",
+    "forward": "forward (free trajectory, Free-like)",
+}
+
+#: How a run picks its poisoned view: the median-indexed training frame (the attack's default,
+#: the paper's choice for uniform captures) or a level of the KDE difficulty protocol.
+ViewChoice = Literal["median-index", "easy", "median", "hard"]
+#: Metric families of a column group: masked metrics at the poisoned view(s), held-out views.
+Metric = Literal["v_illusory", "v_test"]
+
+ATTACK = "--pipeline.attack."
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One training run of a scene: its name (the run folder) and its ns-train options."""
+
+    scene: str
+    """A scene preset (:data:`SCENES`)."""
+    name: str
+    """Run name, unique per scene: the run folder's name."""
+    args: tuple[str, ...] = ()
+    """ns-train options of the attack (``--pipeline.attack.*``), without the view selection."""
+    view: ViewChoice = "median-index"
+    """The poisoned view (the base view of a multi-view attack)."""
+    clean: bool = False
+    """The clean baseline (attack disabled) that every poisoned run of the scene is compared with."""
+    label: str = ""
+    """A short description for listings."""
+
+    @property
+    def key(self) -> str:
+        """``scene/name``, the run's identifier in plans and results."""
+        return f"{self.scene}/{self.name}"
+
+
+def attack_args(
+    gt_replacement: bool = True,
+    density_guided: bool = True,
+    view_noise: bool = True,
+    bandwidth: float = 7.5,
+    noise_sigma0: float = 100.0,
+    noise_decay: str = "linear",
+    multi_view: int = 1,
+) -> tuple[str, ...]:
+    """The ns-train options of an attack run, every setting the tables vary spelled out.
+
+    Defaults are the paper's method: all three components, h = 7.5, sigma0 = 100, linear decay.
+    """
+    return (
+        f"{ATTACK}enabled", "True",
+        f"{ATTACK}gt-replacement", str(gt_replacement),
+        f"{ATTACK}density-guided", str(density_guided),
+        f"{ATTACK}view-noise", str(view_noise),
+        f"{ATTACK}bandwidth", f"{bandwidth:g}",
+        f"{ATTACK}noise-sigma0", f"{noise_sigma0:g}",
+        f"{ATTACK}noise-decay", noise_decay,
+        f"{ATTACK}multi-view", str(multi_view),
+    )  # fmt: skip
+
+
+CLEAN_ARGS: tuple[str, ...] = (f"{ATTACK}enabled", "False")
+
+BANDWIDTHS: tuple[float, ...] = (0.1, 2.5, 5.0, 7.5, 10.0)
+NOISE_SIGMA0S: tuple[float, ...] = (30.0, 100.0)
+#: (--pipeline.attack.noise-decay value, the paper's label)
+NOISE_DECAYS: tuple[tuple[str, str], ...] = (
+    ("linear", "Linear"),
+    ("cosine", "Cosine"),
+    ("sqrt", "Square root"),
+)
+MULTI_VIEWS: tuple[int, ...] = (2, 3, 4)
+
+
+def _bandwidth_run(h: float) -> str:
+    return "full" if h == 7.5 else f"h-{h:g}"
+
+
+def _noise_run(sigma0: float, decay: str) -> str:
+    return "full" if (sigma0, decay) == (100.0, "linear") else f"sigma{sigma0:g}-{decay}"
+
+
+def _runs() -> tuple[RunSpec, ...]:
+    orbit: list[RunSpec] = [
+        RunSpec("orbit", "clean", CLEAN_ARGS, clean=True, label="clean (no attack)"),
+        RunSpec("orbit", "full", attack_args(), label="all three components (the paper's method)"),
+        RunSpec("orbit", "gt-only", attack_args(density_guided=False, view_noise=False), label="GT only"),
+        RunSpec("orbit", "gt-density", attack_args(view_noise=False), label="GT + density-guided"),
+        RunSpec("orbit", "gt-noise", attack_args(density_guided=False), label="GT + view noise"),
+    ]
+    orbit += [
+        RunSpec("orbit", f"views-{k}", attack_args(multi_view=k), label=f"{k} poisoned views")
+        for k in MULTI_VIEWS
+    ]
+    orbit += [
+        RunSpec("orbit", _bandwidth_run(h), attack_args(bandwidth=h), label=f"bandwidth h={h:g}")
+        for h in BANDWIDTHS
+        if _bandwidth_run(h) != "full"
+    ]
+    orbit += [
+        RunSpec(
+            "orbit",
+            _noise_run(s, d),
+            attack_args(noise_sigma0=s, noise_decay=d),
+            label=f"noise sigma0={s:g}, {d} decay",
+        )
+        for s in NOISE_SIGMA0S
+        for d, _ in NOISE_DECAYS
+        if _noise_run(s, d) != "full"
+    ]
+    forward = [RunSpec("forward", "clean", CLEAN_ARGS, clean=True, label="clean (no attack)")]
+    forward += [
+        RunSpec("forward", level, attack_args(), view=level, label=f"{level.capitalize()} view (KDE)")
+        for level in ("easy", "median", "hard")
+    ]
+    return (*orbit, *forward)
+
+
+#: Every run, clean baselines first within each scene.
+RUNS: tuple[RunSpec, ...] = _runs()
+
+
+def get_run(scene: str, name: str) -> RunSpec:
+    """The run ``name`` of ``scene`` (KeyError if none)."""
+    for run in RUNS:
+        if run.scene == scene and run.name == name:
+            return run
+    raise KeyError(f"{scene}/{name}")
+
+
+def clean_run(scene: str) -> RunSpec:
+    """The clean baseline of ``scene``."""
+    (run,) = (r for r in RUNS if r.scene == scene and r.clean)
+    return run
+
+
+# ---------------------------------------------------------------------------------- tables
+V_ILLUSORY: tuple[Metric, ...] = ("v_illusory",)
+BOTH: tuple[Metric, ...] = ("v_illusory", "v_test")
+
+
+@dataclass(frozen=True)
+class Group:
+    """A column group: one scene's numbers (V-illusory and/or V-test, PSNR/SSIM/LPIPS each)."""
+
+    label: str
+    scene: str
+    metrics: tuple[Metric, ...] = BOTH
+
+
+@dataclass(frozen=True)
+class Row:
+    """A table row: its key cells and, per column group, the run it shows."""
+
+    keys: tuple[str, ...]
+    runs: tuple[str, ...]
+    """Run names, one per column group (on that group's scene)."""
+    naive: bool = False
+    """Show the clean run instead, at the poisoned views of ``runs`` (the paper's "Naive 3DGS
+    (w/o attack)" row: the clean model against the same illusion target)."""
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """One of the paper's tables, reproduced on the generated scenes."""
+
+    number: int
+    title: str
+    key_header: tuple[str, ...]
+    groups: tuple[Group, ...]
+    rows: tuple[Row, ...]
+    asr: bool = False
+    """Add the attack-success-rate column (V-illusory > 25 dB and V-test drop <= 3 dB), as n/N
+    over the row's column groups (scenes)."""
+    notes: tuple[str, ...] = ()
+
+    @property
+    def scenes(self) -> tuple[str, ...]:
+        """The scenes this table needs, in column order."""
+        return tuple(dict.fromkeys(g.scene for g in self.groups))
+
+    def run_keys(self, scenes: tuple[str, ...] | None = None) -> list[str]:
+        """``scene/name`` of every run the table shows (its clean baselines excluded)."""
+        keys = [
+            f"{g.scene}/{name}"
+            for row in self.rows
+            for g, name in zip(self.groups, row.runs, strict=True)
+            if scenes is None or g.scene in scenes
+        ]
+        return list(dict.fromkeys(keys))
+
+
+NO_BASELINES = (
+    "The paper's baselines IPA-NeRF (Nerfacto), IPA-NeRF (Instant-NGP) and IPA-Splat are not "
+    "implemented in stealth-ns; their rows are omitted."
+)
+NAIVE_NOTE = (
+    '"Naive 3DGS (w/o attack)" is the clean run: V-illusory renders it at the poisoned view against '
+    "the same illusion target, V-test on the held-out views."
+)
+_ORBIT_ONLY = Group("orbit", "orbit")
+
+TABLES: tuple[TableSpec, ...] = (
+    TableSpec(
+        number=1,
+        title="Single-view attack",
+        key_header=("Method",),
+        groups=(Group(SCENE_LABELS["orbit"], "orbit"), Group(SCENE_LABELS["forward"], "forward")),
+        rows=(
+            Row(("Naive 3DGS (w/o attack)",), ("full", "median"), naive=True),
+            Row(("Ours",), ("full", "median")),
+        ),
+        notes=(
+            NO_BASELINES,
+            NAIVE_NOTE,
+            "Poisoned view: orbit, the median-indexed training frame; forward, the KDE protocol's "
+            "Median view (as in the paper, whose Free column is its Table 2 Median column).",
+        ),
+    ),
+    TableSpec(
+        number=2,
+        title="Single-view attack at the KDE difficulty levels (forward scene, V-illusory)",
+        key_header=("Method",),
+        groups=tuple(Group(label, "forward", V_ILLUSORY) for label in ("Easy", "Median", "Hard")),
+        rows=(
+            Row(("Naive 3DGS (w/o attack)",), ("easy", "median", "hard"), naive=True),
+            Row(("Ours",), ("easy", "median", "hard")),
+        ),
+        notes=(
+            NO_BASELINES,
+            NAIVE_NOTE + " (This row is not in the paper's Table 2.)",
+            "Easy / Median / Hard: the training views of minimum / median / maximum KDE density in "
+            "their frustum (the paper's evaluation protocol).",
+        ),
+    ),
+    TableSpec(
+        number=3,
+        title="Multi-view attack (orbit scene; V-illusory averaged over the poisoned views)",
+        key_header=("# of views", "Method"),
+        groups=(_ORBIT_ONLY,),
+        rows=tuple(Row((str(k), "Ours"), (f"views-{k}",)) for k in MULTI_VIEWS),
+        notes=(
+            NO_BASELINES,
+            "Poisoned views: the training views nearest 0°, 90°, 180°, 270° of azimuth from the "
+            "median-indexed frame.",
+        ),
+    ),
+    TableSpec(
+        number=4,
+        title="Effect of the KDE bandwidth h (orbit scene)",
+        key_header=("Bandwidth h",),
+        groups=(_ORBIT_ONLY,),
+        rows=tuple(Row((f"{h:.1f}",), (_bandwidth_run(h),)) for h in BANDWIDTHS),
+        notes=("h in voxels of the density grid; all other settings are the method's defaults.",),
+    ),
+    TableSpec(
+        number=5,
+        title="Effect of the noise schedule (orbit scene)",
+        key_header=("Initial noise σ0", "Decay strategy"),
+        groups=(_ORBIT_ONLY,),
+        rows=tuple(
+            Row((f"{s:g}", label), (_noise_run(s, d),)) for s in NOISE_SIGMA0S for d, label in NOISE_DECAYS
+        ),
+        notes=("σ0 on the 0-255 scale, decaying to 0 over the training run.",),
+    ),
+    TableSpec(
+        number=6,
+        title="Attack strategy combinations (orbit scene)",
+        key_header=(
+            "Poisoned view GT replacement",
+            "Density-guided point cloud attack",
+            "View consistency disruption attack",
+        ),
+        groups=(_ORBIT_ONLY,),
+        rows=(
+            Row(("✓", "", ""), ("gt-only",)),
+            Row(("✓", "✓", ""), ("gt-density",)),
+            Row(("✓", "", "✓"), ("gt-noise",)),
+            Row(("✓", "✓", "✓"), ("full",)),
+        ),
+        asr=True,
+        notes=(
+            "ASR: attacks that succeed (V-illusory PSNR > 25 dB and V-test PSNR drop <= 3 dB against "
+            "the clean run) out of the scenes run; the paper's is over 7 Mip-NeRF 360 scenes.",
+        ),
+    ),
+)
+
+
+def get_table(number: int) -> TableSpec:
+    """Table ``number`` (KeyError if none)."""
+    for table in TABLES:
+        if table.number == number:
+            return table
+    raise KeyError(number)

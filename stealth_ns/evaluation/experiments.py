@@ -1,0 +1,819 @@
+"""``stealth-ns bench attack``: the paper's Tables 1-6 on the generated scenes.
+
+The presets (:mod:`stealth_ns.method_configs.attack_experiments`) say which runs each table
+shows. This module plans the runs of the chosen tables and scenes (a run shared by several
+tables is trained once), trains what is missing with a progress bar across runs (each
+``ns-train``'s output goes to ``ns-train.log`` in its run folder), reuses finished runs and
+retrains interrupted ones (see :mod:`stealth_ns.evaluation.runs`), compares every poisoned run
+with the clean run of its scene (:func:`stealth_ns.evaluation.report.compare_runs`, cached as
+``metrics.json`` in the poisoned run's folder) and writes ``OUTPUT/tables.md`` (markdown shaped
+like the paper's tables) and ``OUTPUT/results.json`` (every number, the environment, timings).
+
+Layout under ``OUTPUT``: ``scenes/PRESET-seedS`` (generated once), ``runs/SCENE-ITERSit/METHOD/RUN``
+(one nerfstudio run each), ``tables.md``, ``results.json``. Both outputs are rewritten after
+every run, so they fill in while the benchmark runs (``"complete": false`` until the end).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import re
+import subprocess
+import sys
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stealth_ns.errors import StealthNSError
+from stealth_ns.evaluation.runs import (
+    TRAIN_LOG,
+    RunStatus,
+    TrainRecord,
+    TrainSpec,
+    finished_record,
+    json_safe,
+    run_status,
+    train,
+    write_json_atomic,
+)
+from stealth_ns.method_configs.attack_experiments import (
+    SCENES,
+    TABLES,
+    RunSpec,
+    TableSpec,
+    clean_run,
+    get_run,
+    get_table,
+)
+
+DEFAULT_OUTPUT = Path("bench-attack-output")
+#: Methods with the attack pipeline (``--pipeline.attack.*``).
+METHODS: tuple[str, ...] = ("stealth-splat-lite", "stealth-splat")
+METRICS_FILE = "metrics.json"
+METRICS_LOG = "metrics.log"
+KDE_LEVELS = ("easy", "median", "hard")
+SUCCESS_RULE = "V-illusory PSNR > 25 dB and V-test PSNR drop <= 3 dB"
+NOT_IMPLEMENTED = (
+    "Not implemented in stealth-ns: the paper's IPA-NeRF (Nerfacto), IPA-NeRF (Instant-NGP) and "
+    "IPA-Splat baselines (no rows for them), and its real datasets (Mip-NeRF 360, Tanks & Temples, "
+    "Free), replaced by the generated scenes."
+)
+
+
+# ------------------------------------------------------------------------------ options
+def parse_tables(values: Sequence[str | int] | None) -> tuple[int, ...]:
+    """Table numbers from ``--tables`` values (``6``, ``"1,2"``, ``"all"``); None = all."""
+    known = tuple(t.number for t in TABLES)
+    if values is None:
+        return known
+    chosen: list[int] = []
+    for value in values:
+        for item in str(value).replace(",", " ").split():
+            if item.lower() == "all":
+                chosen.extend(known)
+                continue
+            number = int(item) if item.isdigit() else None
+            if number not in known:
+                raise StealthNSError(f"unknown table {item!r}; tables: {' '.join(map(str, known))}")
+            chosen.append(number)
+    if not chosen:
+        raise StealthNSError(f"no table given; tables: {' '.join(map(str, known))}")
+    return tuple(sorted(set(chosen)))
+
+
+def parse_scenes(values: Sequence[str] | None) -> tuple[str, ...]:
+    """Scene presets from ``--scenes`` values (``orbit``, ``forward``, ``all``); None = all."""
+    if values is None:
+        return SCENES
+    chosen: set[str] = set()
+    for value in values:
+        for item in str(value).replace(",", " ").split():
+            if item.lower() == "all":
+                chosen.update(SCENES)
+            elif item in SCENES:
+                chosen.add(item)
+            else:
+                raise StealthNSError(f"unknown scene {item!r}; scenes: {' '.join(SCENES)}")
+    if not chosen:
+        raise StealthNSError(f"no scene given; scenes: {' '.join(SCENES)}")
+    return tuple(s for s in SCENES if s in chosen)
+
+
+def method_iterations(method: str) -> int:
+    """The default ``max_num_iterations`` of a stealth-ns method (from its nerfstudio entry point)."""
+    from importlib.metadata import entry_points
+
+    if method not in METHODS:
+        raise StealthNSError(f"unknown method {method!r}; methods: {', '.join(METHODS)}")
+    for ep in entry_points(group="nerfstudio.method_configs"):
+        if ep.name == method:
+            return int(ep.load().config.max_num_iterations)
+    raise StealthNSError(f"method {method!r} is not registered with nerfstudio (is stealth-ns installed?)")
+
+
+# ------------------------------------------------------------------------------ the plan
+@dataclass
+class PlannedRun:
+    """A run of the plan: its preset, its ns-train spec and what is on disk for it."""
+
+    run: RunSpec
+    spec: TrainSpec
+    status: RunStatus
+    tables: tuple[int, ...]
+    view: str | None = None
+    """The poisoned view's image name when the KDE protocol picks it (None: the attack's default)."""
+
+    @property
+    def key(self) -> str:
+        return self.run.key
+
+
+@dataclass
+class Plan:
+    """The runs needed for some tables on some scenes, deduplicated, clean baselines first."""
+
+    output: Path
+    method: str
+    iterations: int
+    seed: int
+    tables: tuple[TableSpec, ...]
+    scenes: tuple[str, ...]
+    scene_dirs: dict[str, Path]
+    scene_ready: dict[str, bool]
+    views: dict[str, dict[str, str]]
+    runs: list[PlannedRun]
+    skipped: list[str] = field(default_factory=list)
+
+    def get(self, key: str) -> PlannedRun:
+        for planned in self.runs:
+            if planned.key == key:
+                return planned
+        raise KeyError(key)
+
+    def counts(self) -> dict[str, int]:
+        return {s: sum(p.status == s for p in self.runs) for s in ("missing", "partial", "finished")}
+
+    def describe(self, dry_run: bool) -> str:
+        """The plan as text: settings, then one entry per run (what happens to it, its ns-train command)."""
+        lines = ["stealth-ns bench attack" + (" --dry-run: nothing is trained or written" if dry_run else "")]
+        lines.append(f"  output:  {self.output}  (tables.md, results.json; runs under runs/)")
+        lines.append(f"  method:  {self.method}, {self.iterations} iterations, seed {self.seed}")
+        lines.append("  tables:  " + "; ".join(f"{t.number} {t.title}" for t in self.tables))
+        for scene in self.scenes:
+            state = "" if self.scene_ready[scene] else "  (to be generated)"
+            lines.append(f"  scene:   {scene} -> {self.scene_dirs[scene]}{state}")
+        lines += [f"  note:    {note}" for note in self.skipped]
+        c = self.counts()
+        lines.append("")
+        lines.append(
+            f"{len(self.runs)} runs: {c['missing']} to train, {c['partial']} unfinished on disk (deleted and "
+            f"retrained), {c['finished']} finished (reused)"
+        )
+        todo = c["missing"] + c["partial"]
+        done_seconds = [
+            rec.seconds for p in self.runs if p.status == "finished" and (rec := finished_record(p.spec))
+        ]
+        if todo and done_seconds:
+            mean = sum(done_seconds) / len(done_seconds)
+            lines.append(
+                f"estimate: {todo} x {mean / 60:.1f} min (mean of the finished runs) = "
+                f"{todo * mean / 60:.0f} min of training"
+            )
+        action = {"missing": "train", "partial": "retrain", "finished": "reuse"}
+        for p in self.runs:
+            tables = ", ".join(map(str, p.tables))
+            view = f"; poisoned view {p.view}" if p.view else ""
+            lines.append("")
+            lines.append(f"  [{action[p.status]:<7}] {p.key:<22} {p.run.label} (tables {tables}{view})")
+            if p.status == "finished":
+                lines.append(f"            {p.spec.run_dir}")
+            else:
+                lines.append(f"            {p.spec.display_command()}")
+        return "\n".join(lines)
+
+
+def scene_dir(output: Path, preset: str, seed: int, scene_options: dict[str, Any] | None = None) -> Path:
+    """``OUTPUT/scenes/PRESET-seedS`` (with the resolution and view count when not the defaults)."""
+    name = f"{preset}-seed{seed}"
+    if scene_options:
+        name += "".join(f"-{k}{v}" for k, v in sorted(scene_options.items()))
+    return output / "scenes" / name
+
+
+def _scene_info(path: Path) -> dict[str, Any] | None:
+    try:
+        info = json.loads((path / "scene.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return info if isinstance(info, dict) and (path / "transforms.json").is_file() else None
+
+
+def scene_is_ready(path: Path, preset: str, seed: int, scene_options: dict[str, Any] | None = None) -> bool:
+    """True when ``path`` holds a completely generated scene of this preset and seed.
+
+    ``make_scene`` writes ``scene.json`` last, so its presence means the scene is complete.
+    """
+    info = _scene_info(path)
+    if info is None or info.get("preset") != preset or info.get("seed") != seed:
+        return False
+    opts = scene_options or {}
+    if "views" in opts and info.get("views") != opts["views"]:
+        return False
+    if "resolution" in opts:
+        width, height = (int(v) for v in str(opts["resolution"]).lower().split("x"))
+        if info.get("resolution") != [width, height]:
+            return False
+    return True
+
+
+def ensure_scene(path: Path, preset: str, seed: int, scene_options: dict[str, Any] | None = None) -> None:
+    """Generate the scene unless a complete one is there."""
+    if scene_is_ready(path, preset, seed, scene_options):
+        return
+    from stealth_ns.scenes import make_scene
+
+    print(f"generating the {preset} scene in {path}", flush=True)
+    make_scene(preset=preset, output=path, seed=seed, overwrite=True, **(scene_options or {}))
+
+
+def kde_views(path: Path, write_cache: bool) -> dict[str, str]:
+    """Easy / Median / Hard training views of a scene by the KDE protocol, cached next to the scene."""
+    cache = path.with_name(path.name + ".views.json")
+    scene_json = (path / "scene.json").read_text()
+    try:
+        data = json.loads(cache.read_text())
+        if data.get("scene.json") == scene_json and set(data.get("views", {})) == set(KDE_LEVELS):
+            return {k: str(v) for k, v in data["views"].items()}
+    except (OSError, ValueError, AttributeError):
+        pass
+    try:
+        from stealth_ns.evaluation.difficulty import rank_scene_views
+    except ImportError as err:
+        raise StealthNSError(f"the KDE difficulty protocol is not available ({err})") from None
+    ranking = rank_scene_views(path)
+    views = {"easy": ranking.easy, "median": ranking.median, "hard": ranking.hard}
+    if write_cache:
+        write_json_atomic(cache, {"scene.json": scene_json, "views": views})
+    return views
+
+
+def make_plan(
+    output: Path,
+    tables: Sequence[str | int] | None = None,
+    scenes: Sequence[str] | None = None,
+    method: str = "stealth-splat-lite",
+    iterations: int | None = None,
+    seed: int = 0,
+    scene_options: dict[str, Any] | None = None,
+    write_cache: bool = False,
+) -> Plan:
+    """Plan the runs of ``tables`` on ``scenes`` (bad input: :class:`StealthNSError`).
+
+    Looks at the disk (which runs are finished, which scenes exist) but writes nothing unless
+    ``write_cache`` (the KDE view cache). Runs whose poisoned view comes from the KDE protocol
+    get a placeholder view while their scene does not exist yet.
+    """
+    numbers = parse_tables(tables)
+    chosen_scenes = parse_scenes(scenes)
+    if method not in METHODS:
+        raise StealthNSError(f"unknown method {method!r}; methods: {', '.join(METHODS)}")
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise StealthNSError(f"seed must be a non-negative integer, got {seed!r}")
+    if iterations is None:
+        iterations = method_iterations(method)
+    if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
+        raise StealthNSError(f"iterations must be a positive integer, got {iterations!r}")
+    output = Path(output).expanduser().absolute()
+
+    table_specs: list[TableSpec] = []
+    skipped: list[str] = []
+    uses: dict[str, list[int]] = {}
+    for number in numbers:
+        table = get_table(number)
+        keys = table.run_keys(chosen_scenes)
+        if not keys:
+            skipped.append(
+                f"Table {number} skipped: it runs on {' and '.join(table.scenes)}, not in --scenes"
+            )
+            continue
+        table_specs.append(table)
+        for key in keys:
+            uses.setdefault(key, []).append(number)
+    if not table_specs:
+        raise StealthNSError(
+            "nothing to run: " + "; ".join(skipped) + f" (scenes given: {' '.join(chosen_scenes)})"
+        )
+    used_scenes = tuple(s for s in chosen_scenes if any(k.startswith(f"{s}/") for k in uses))
+    for scene in used_scenes:  # a scene's clean run serves every table that runs on the scene
+        numbers_on_scene = {n for key, ns in uses.items() if key.startswith(f"{scene}/") for n in ns}
+        uses.setdefault(clean_run(scene).key, []).extend(numbers_on_scene)
+
+    dirs = {s: scene_dir(output, s, seed, scene_options) for s in used_scenes}
+    ready = {s: scene_is_ready(dirs[s], s, seed, scene_options) for s in used_scenes}
+    views: dict[str, dict[str, str]] = {}
+    for scene in used_scenes:
+        needs_kde = any(get_run(*k.split("/")).view in KDE_LEVELS for k in uses if k.startswith(f"{scene}/"))
+        if ready[scene] and needs_kde:
+            views[scene] = kde_views(dirs[scene], write_cache)
+
+    planned: list[PlannedRun] = []
+    first_use = list(uses)  # in table order, then row order: Table 6 runs in the paper's row order
+
+    def order(key: str) -> tuple[int, bool, int]:
+        run = get_run(*key.split("/"))
+        return SCENES.index(run.scene), not run.clean, first_use.index(key)
+
+    for key in sorted(uses, key=order):
+        run = get_run(*key.split("/"))
+        extra = list(run.args)
+        view = None
+        if run.view in KDE_LEVELS:
+            view = views.get(run.scene, {}).get(run.view) or f"<{run.view.upper()} view of the KDE protocol>"
+            extra += ["--pipeline.attack.views", view]
+        if not run.clean:
+            extra += ["--pipeline.attack.seed", str(seed)]
+        spec = TrainSpec(
+            scene=dirs[run.scene],
+            name=run.name,
+            output_dir=output / "runs",
+            experiment=f"{dirs[run.scene].name}-{iterations}it",
+            extra=tuple(extra),
+            method=method,
+            iterations=int(iterations),
+            seed=int(seed),
+        )
+        planned.append(PlannedRun(run, spec, run_status(spec), tuple(sorted(set(uses[key]))), view))
+    return Plan(
+        output=output,
+        method=method,
+        iterations=int(iterations),
+        seed=int(seed),
+        tables=tuple(table_specs),
+        scenes=used_scenes,
+        scene_dirs=dirs,
+        scene_ready=ready,
+        views=views,
+        runs=planned,
+        skipped=skipped,
+    )
+
+
+# ------------------------------------------------------------------------------ running it
+def pair_metrics(
+    poisoned: PlannedRun, poisoned_rec: TrainRecord, clean: PlannedRun, clean_rec: TrainRecord
+) -> tuple[dict[str, Any], float, bool]:
+    """``compare_runs`` of a poisoned run and its clean baseline, cached in ``metrics.json``.
+
+    Returns ``(metrics, seconds, cached)``; the cache holds while neither run is retrained.
+    """
+    cache = poisoned.spec.run_dir / METRICS_FILE
+    stamp = {"poisoned_run_id": poisoned_rec.run_id, "clean_run_id": clean_rec.run_id}
+    try:
+        data = json.loads(cache.read_text())
+        if data.get("stamp") == stamp and isinstance(data.get("metrics"), dict):
+            return data["metrics"], float(data.get("seconds", 0.0)), True
+    except (OSError, ValueError, AttributeError):
+        pass
+    from stealth_ns.evaluation import report
+
+    t0 = time.perf_counter()
+    # loading two runs in-process is chatty (nerfstudio's console, warnings): keep it in a log
+    with (poisoned.spec.run_dir / METRICS_LOG).open("w") as log, redirect_stdout(log), redirect_stderr(log):
+        try:
+            metrics = json_safe(report.compare_runs(poisoned.spec.config_path, clean.spec.config_path))
+        except Exception:
+            traceback.print_exc(file=log)
+            raise
+    seconds = round(time.perf_counter() - t0, 2)
+    write_json_atomic(
+        cache,
+        {"stamp": stamp, "clean_config": str(clean.spec.config_path), "seconds": seconds, "metrics": metrics},
+    )
+    return metrics, seconds, False
+
+
+def _progress_parser(bar: Any, key: str) -> Callable[[str], None]:
+    """An ``on_line`` callback that shows ns-train's "STEP (P%)" progress in the bar's postfix."""
+    pattern = re.compile(r"(\d+) \((\d+(?:\.\d+)?)%\)")
+    last = [-1]
+
+    def on_line(line: str) -> None:
+        match = pattern.search(line)
+        if match:
+            pct = int(float(match.group(2)))
+            if pct != last[0]:
+                last[0] = pct
+                bar.set_postfix_str(f"{key} training {pct}%")
+
+    return on_line
+
+
+def _git_commit() -> str | None:
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    commit = out.stdout.strip()
+    return commit if out.returncode == 0 and commit else None
+
+
+def environment(plan: Plan, started: float) -> dict[str, Any]:
+    """Method, iterations, seed, date, versions and hardware of this benchmark."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    import torch
+
+    def _version(name: str) -> str | None:
+        try:
+            return version(name)
+        except PackageNotFoundError:
+            return None
+
+    cuda = torch.cuda.is_available()
+    return {
+        "method": plan.method,
+        "iterations": plan.iterations,
+        "seed": plan.seed,
+        "scene_seed": plan.seed,
+        "attack_noise_seed": plan.seed,
+        "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
+        "wall_seconds": round(time.time() - started, 1),
+        "device": torch.cuda.get_device_name(0) if cuda else "cpu",
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "torch": torch.__version__,
+        "nerfstudio": _version("nerfstudio"),
+        "stealth_ns": _version("stealth-ns"),
+        "git_commit": _git_commit(),
+    }
+
+
+def _run_entry(p: PlannedRun) -> dict[str, Any]:
+    return {
+        "scene": p.run.scene,
+        "name": p.run.name,
+        "label": p.run.label,
+        "clean": p.run.clean,
+        "tables": list(p.tables),
+        "view_choice": p.run.view,
+        "kde_view": p.view,
+        "args": list(p.spec.extra),
+        "run_dir": str(p.spec.run_dir),
+        "config": str(p.spec.config_path),
+        "command": p.spec.command(),
+        "status": "pending",
+    }
+
+
+def build_results(plan: Plan, runs: dict[str, dict[str, Any]], env: dict[str, Any], complete: bool) -> dict:
+    """The results.json document: environment, scenes, runs (with metrics) and the tables' numbers."""
+    scenes = {}
+    for scene in plan.scenes:
+        info = _scene_info(plan.scene_dirs[scene]) or {}
+        scenes[scene] = {
+            "path": str(plan.scene_dirs[scene]),
+            "preset": scene,
+            "resolution": info.get("resolution"),
+            "views": info.get("views"),
+            "n_train": info.get("n_train"),
+            "n_test": info.get("n_test"),
+            "kde_views": plan.views.get(scene),
+        }
+    return {
+        "generator": "stealth-ns bench attack",
+        "complete": complete,
+        "environment": env,
+        "not_implemented": NOT_IMPLEMENTED,
+        "success_rule": SUCCESS_RULE,
+        "scenes": scenes,
+        "runs": runs,
+        "tables": {str(t.number): table_data(t, runs, plan.scenes) for t in plan.tables},
+    }
+
+
+def _write_outputs(
+    plan: Plan, runs: dict[str, dict[str, Any]], started: float, complete: bool
+) -> dict[str, Any]:
+    """Write results.json and tables.md (each replaced whole); returns the results document."""
+    results = json_safe(build_results(plan, runs, environment(plan, started), complete))
+    plan.output.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(plan.output / "results.json", results)
+    tmp = plan.output / ".tables.md.tmp"
+    tmp.write_text(render_markdown(results))
+    tmp.replace(plan.output / "tables.md")
+    return results
+
+
+def execute(plan: Plan) -> dict[str, Any]:
+    """Train (or reuse) every run of the plan, compute the metrics, write tables.md and results.json.
+
+    Returns the results document. Failed runs are reported (with their log) and skipped; after
+    the outputs are written, a :class:`StealthNSError` lists them.
+    """
+    from tqdm import tqdm
+
+    started = time.time()
+    runs = {p.key: _run_entry(p) for p in plan.runs}
+    records: dict[str, TrainRecord] = {}
+    failures: list[str] = []
+    # the bar is drawn on a terminal only; elsewhere (a log file) the per-run lines tell the progress
+    bar = tqdm(total=len(plan.runs), unit="run", desc="bench attack", dynamic_ncols=True, disable=None)
+    try:
+        for i, p in enumerate(plan.runs, start=1):
+            entry = runs[p.key]
+            tag = f"[{i}/{len(plan.runs)}]"
+            doing = "reusing" if p.status == "finished" else "training"
+            bar.set_postfix_str(f"{p.key} {doing}")
+            if bar.disable and p.status != "finished":
+                print(f"{tag} training {p.key} (log: {p.spec.run_dir / TRAIN_LOG})", flush=True)
+            try:
+                record = train(p.spec, stream=False, on_line=_progress_parser(bar, p.key))
+            except StealthNSError as err:
+                entry.update(status="failed", error=str(err), log=str(p.spec.run_dir / TRAIN_LOG))
+                failures.append(p.key)
+                bar.write(f"{tag} FAILED {p.key}: {err}")
+                bar.update(1)
+                _write_outputs(plan, runs, started, complete=False)
+                continue
+            records[p.key] = record
+            entry.update(
+                status="trained" if record.trained_now else "reused",
+                train_seconds=record.seconds,
+                trained_at=record.finished_at,
+                iterations=record.iterations,
+                log=str(p.spec.run_dir / TRAIN_LOG),
+            )
+            verb = "trained" if record.trained_now else "reused"
+            msg = f"{tag} {verb} {p.key} ({record.seconds:.0f} s of training)"
+            if not p.run.clean:
+                msg += _attach_metrics(plan, p, record, records, entry, bar)
+                if "metrics_error" in entry:
+                    failures.append(f"{p.key} (metrics)")
+            bar.write(msg)
+            bar.update(1)
+            _write_outputs(plan, runs, started, complete=False)
+    except KeyboardInterrupt:
+        bar.close()
+        print(
+            "interrupted: finished runs are kept; run the same command again to resume "
+            "(the unfinished run is retrained)",
+            file=sys.stderr,
+        )
+        raise
+    bar.close()
+    results = _write_outputs(plan, runs, started, complete=not failures)
+    if failures:
+        raise StealthNSError(
+            f"{len(failures)} of {len(plan.runs)} runs failed ({', '.join(failures)}); their numbers are "
+            f"n/a in {plan.output / 'tables.md'}; the logs are named above. Run the same command again "
+            "to retry them (finished runs and their metrics are reused)"
+        )
+    return results
+
+
+def _attach_metrics(
+    plan: Plan, p: PlannedRun, record: TrainRecord, records: dict[str, TrainRecord], entry: dict, bar: Any
+) -> str:
+    """Compare ``p`` with its scene's clean run into ``entry``; returns a short note for the log line."""
+    clean = plan.get(clean_run(p.run.scene).key)
+    clean_rec = records.get(clean.key)
+    if clean_rec is None:
+        entry["metrics_error"] = f"the clean run {clean.key} failed"
+        return f"; no metrics: the clean run {clean.key} failed"
+    bar.set_postfix_str(f"{p.key} metrics")
+    try:
+        metrics, seconds, cached = pair_metrics(p, record, clean, clean_rec)
+    except Exception as err:  # one failed comparison must not stop the benchmark
+        log = p.spec.run_dir / METRICS_LOG
+        entry["metrics_error"] = f"{type(err).__name__}: {err} (traceback in {log})"
+        return f"; metrics FAILED: {type(err).__name__}: {err} (see {log})"
+    entry.update(metrics=metrics, metrics_seconds=seconds, metrics_cached=cached)
+    ill, drop = metrics.get("v_illusory_psnr"), metrics.get("v_test_drop")
+    note = f"; V-illusory {_fmt(ill, 2)} dB, V-test drop {_fmt(drop, 2)} dB"
+    return note + (", attack succeeds" if metrics.get("attack_success") else ", attack fails")
+
+
+def run_bench(
+    output: Path = DEFAULT_OUTPUT,
+    tables: Sequence[str | int] | None = None,
+    scenes: Sequence[str] | None = None,
+    method: str = "stealth-splat-lite",
+    iterations: int | None = None,
+    seed: int = 0,
+    dry_run: bool = False,
+    scene_options: dict[str, Any] | None = None,
+) -> Plan | dict[str, Any]:
+    """``stealth-ns bench attack``: the plan (``dry_run``) or the results document."""
+    plan = make_plan(output, tables, scenes, method, iterations, seed, scene_options)
+    if dry_run:
+        print(plan.describe(dry_run=True))
+        return plan
+    for scene in plan.scenes:
+        ensure_scene(plan.scene_dirs[scene], scene, plan.seed, scene_options)
+    plan = make_plan(output, tables, scenes, method, plan.iterations, seed, scene_options, write_cache=True)
+    print(plan.describe(dry_run=False), flush=True)
+    print(flush=True)
+    results = execute(plan)
+    print(f"\nwrote {plan.output / 'tables.md'} and {plan.output / 'results.json'}")
+    return results
+
+
+# ------------------------------------------------------------------------------ the tables
+METRIC_NAMES = (("psnr", "PSNR↑", 2), ("ssim", "SSIM↑", 3), ("lpips", "LPIPS↓", 3))
+FAMILY_LABELS = {"v_illusory": "V-illusory", "v_test": "V-test"}
+MISSING = "n/a"
+
+
+def _metric_key(family: str, metric: str, naive: bool) -> str:
+    if family == "v_illusory":
+        return f"v_illusory_clean_{metric}" if naive else f"v_illusory_{metric}"
+    return f"v_test_{metric}_clean" if naive else f"v_test_{metric}"
+
+
+def table_data(table: TableSpec, runs: dict[str, dict[str, Any]], scenes: Sequence[str]) -> dict[str, Any]:
+    """A table's header and numbers from the runs' metrics (``"n/a"`` where a run has none).
+
+    Only the column groups of ``scenes`` are kept. Values are floats, None (a metric the run
+    could not compute, e.g. LPIPS without its weights) or ``"n/a"`` (run failed or missing).
+    """
+    groups = [(i, g) for i, g in enumerate(table.groups) if g.scene in scenes]
+    multi_group = len(table.groups) > 1  # label the scene even when --scenes keeps one group
+    columns: list[dict[str, Any]] = []
+    for _, g in groups:
+        for family in g.metrics:
+            for metric, label, digits in METRIC_NAMES:
+                parts = [g.label if multi_group else "", FAMILY_LABELS[family], label]
+                columns.append({"label": " ".join(p for p in parts if p), "metric": metric, "digits": digits})
+    rows = []
+    lpips_notes: set[str] = set()
+    missing_runs: set[str] = set()
+    for row in table.rows:
+        values: list[Any] = []
+        successes: list[bool] = []
+        for i, g in groups:
+            key = f"{g.scene}/{row.runs[i]}"
+            metrics = (runs.get(key) or {}).get("metrics")
+            if not isinstance(metrics, dict):
+                missing_runs.add(key)
+            elif metrics.get("lpips_unavailable"):
+                lpips_notes.add(str(metrics["lpips_unavailable"]))
+            if isinstance(metrics, dict) and not row.naive:
+                successes.append(bool(metrics.get("attack_success")))
+            for family in g.metrics:
+                for metric, _, _ in METRIC_NAMES:
+                    if not isinstance(metrics, dict):
+                        values.append(MISSING)
+                    else:
+                        v = metrics.get(_metric_key(family, metric, row.naive))
+                        values.append(float(v) if isinstance(v, (int, float)) else None)
+        entry: dict[str, Any] = {
+            "keys": list(row.keys),
+            "runs": [f"{g.scene}/{row.runs[i]}" for i, g in groups],
+            "naive": row.naive,
+            "values": values,
+        }
+        if table.asr:
+            entry["asr"] = f"{sum(successes)}/{len(successes)}" if successes else MISSING
+        rows.append(entry)
+    return {
+        "number": table.number,
+        "title": table.title,
+        "key_header": list(table.key_header),
+        "columns": columns,
+        "asr": table.asr,
+        "rows": rows,
+        "notes": list(table.notes),
+        "lpips_unavailable": sorted(lpips_notes),
+        "missing_runs": sorted(missing_runs),
+    }
+
+
+def _fmt(value: Any, digits: int) -> str:
+    if value == MISSING:
+        return MISSING
+    if value is None:
+        return "–"
+    text = f"{float(value):.{digits}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0 else text  # no "-0.00"
+
+
+def render_table(data: dict[str, Any]) -> str:
+    """One table of :func:`table_data` as markdown; the best attack value of each column in bold."""
+    columns = data["columns"]
+    header = [*data["key_header"], *(c["label"] for c in columns)]
+    if data["asr"]:
+        header.append(f"ASR ({SUCCESS_RULE})")
+    best: list[str | None] = []
+    for j, col in enumerate(columns):
+        vals = [r["values"][j] for r in data["rows"] if not r["naive"] and isinstance(r["values"][j], float)]
+        texts = {_fmt(v, col["digits"]) for v in vals}
+        if len(texts) < 2:  # one row, or all equal: nothing to single out
+            best.append(None)
+            continue
+        pick = min(vals) if col["metric"] == "lpips" else max(vals)
+        best.append(_fmt(pick, col["digits"]))
+    lines = [f"## Table {data['number']}: {data['title']}", ""]
+    lines.append("| " + " | ".join(header) + " |")
+    lines.append(
+        "|"
+        + "|".join([":--"] * len(data["key_header"]) + ["--:"] * (len(header) - len(data["key_header"])))
+        + "|"
+    )
+    for r in data["rows"]:
+        cells = list(r["keys"])
+        for j, col in enumerate(columns):
+            text = _fmt(r["values"][j], col["digits"])
+            cells.append(
+                f"**{text}**" if not r["naive"] and best[j] is not None and text == best[j] else text
+            )
+        if data["asr"]:
+            cells.append(r["asr"])
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    notes = list(data["notes"])
+    for reason in data["lpips_unavailable"]:
+        notes.append(f"LPIPS shown as –: {reason}")
+    if data["missing_runs"]:
+        notes.append(
+            f"{MISSING}: no numbers for {', '.join(data['missing_runs'])} (run failed, interrupted or not "
+            "run yet; see results.json and the run's ns-train.log)"
+        )
+    lines += [f"- {note}" for note in notes]
+    return "\n".join(lines) + "\n"
+
+
+def _runs_table(runs: dict[str, dict[str, Any]]) -> str:
+    header = [
+        "Run", "Settings", "Poisoned view(s)", "V-illusory PSNR", "V-test PSNR (clean → poisoned)",
+        "Drop", "Success", "Gaussians (poison)", "Training", "This invocation",
+    ]  # fmt: skip
+    lines = ["## All runs", "", "| " + " | ".join(header) + " |", "|" + "|".join([":--"] * len(header)) + "|"]
+    for key, e in runs.items():
+        m = e.get("metrics") if isinstance(e.get("metrics"), dict) else None
+        seconds = e.get("train_seconds")
+        train_time = f"{seconds / 60:.1f} min" if isinstance(seconds, (int, float)) else MISSING
+        if m is not None:
+            views = ", ".join(m.get("poisoned_views") or [])
+            test = f"{_fmt(m.get('v_test_psnr_clean'), 2)} → {_fmt(m.get('v_test_psnr'), 2)}"
+            gauss = f"{m.get('n_gaussians', MISSING)} ({m.get('n_poison_gaussians', MISSING)})"
+            cells = [
+                views, _fmt(m.get("v_illusory_psnr"), 2), test, _fmt(m.get("v_test_drop"), 2),
+                "yes" if m.get("attack_success") else "no", gauss,
+            ]  # fmt: skip
+        elif e.get("clean"):
+            cells = ["–", "–", "–", "–", "–", "–"]
+        else:
+            cells = [e.get("kde_view") or MISSING, MISSING, MISSING, MISSING, MISSING, MISSING]
+        status = e.get("status", MISSING)
+        if e.get("metrics_error"):
+            status += " (metrics failed)"
+        lines.append("| " + " | ".join([key, e.get("label", ""), *cells, train_time, status]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def render_markdown(results: dict[str, Any]) -> str:
+    """``tables.md``: a header (method, environment, what is not implemented), the tables, all runs."""
+    env = results.get("environment", {})
+    scenes = results.get("scenes", {})
+    scene_text = ", ".join(
+        f"{name} ({'x'.join(map(str, s['resolution'])) if s.get('resolution') else '?'}, "
+        f"{s.get('views', '?')} views)"
+        for name, s in scenes.items()
+    )
+    lines = [
+        "# StealthAttack experiments: the paper's tables on the generated scenes",
+        "",
+        f"Produced by `stealth-ns bench attack` on {env.get('date', '?')}: method "
+        f"{env.get('method', '?')}, {env.get('iterations', '?')} iterations, seed {env.get('seed', '?')}, "
+        f"device {env.get('device', '?')} ({env.get('cpu_count', '?')} CPU cores); torch "
+        f"{env.get('torch', '?')}, nerfstudio {env.get('nerfstudio', '?')}. Scenes: {scene_text or '?'}.",
+        "",
+        "Every number is measured from the runs listed at the end; `results.json` next to this file has "
+        "all of them, with timings. V-illusory: masked metrics of the poisoned view(s) against the "
+        "illusion target; V-test: held-out views against the clean images. Attack success: "
+        f"{SUCCESS_RULE} against the clean run of the same scene.",
+        "",
+        results.get("not_implemented", NOT_IMPLEMENTED),
+        "",
+    ]
+    if not results.get("complete", True):
+        lines += ["**Incomplete**: some runs have not finished (or failed); their cells read n/a.", ""]
+    for number in sorted(results.get("tables", {}), key=int):
+        lines.append(render_table(results["tables"][number]))
+    lines.append(_runs_table(results.get("runs", {})))
+    return "\n".join(lines)

@@ -1,0 +1,431 @@
+"""`stealth-ns bench attack`: the plan, reuse of finished runs, resuming, the tables, bad input.
+
+The fast tests replace ns-train (``runs.run_command``) and the run comparison
+(``report.compare_runs``) with fakes that write what the real ones would; the one slow test
+trains a real tiny run through :mod:`stealth_ns.evaluation.runs`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from conftest import run_cli
+
+from stealth_ns.errors import StealthNSError
+from stealth_ns.evaluation import experiments, runs
+from stealth_ns.evaluation.experiments import make_plan, render_markdown, run_bench, table_data
+from stealth_ns.evaluation.runs import TrainSpec, is_finished, run_status, train
+from stealth_ns.method_configs.attack_experiments import RUNS, TABLES, get_table
+
+TINY = {"resolution": "64x48", "views": 16}
+TABLE6_ORDER = ["orbit/clean", "orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"]
+
+
+def _arg(cmd: list[str], flag: str) -> str:
+    return cmd[cmd.index(flag) + 1]
+
+
+class FakeTraining:
+    """Stands in for ns-train: writes config.yml and the checkpoints a finished run has."""
+
+    def __init__(self, fail: set[str] | None = None) -> None:
+        self.trained: list[str] = []
+        self.fail = fail or set()
+
+    def __call__(self, cmd, log, stream=True, on_line=None) -> None:
+        name = _arg(cmd, "--timestamp")
+        run_dir = Path(_arg(cmd, "--output-dir")) / _arg(cmd, "--experiment-name") / cmd[1] / name
+        iters = int(_arg(cmd, "--max-num-iterations"))
+        log.write_text("fake ns-train\n")
+        if name in self.fail:
+            raise StealthNSError(f"ns-train failed (exit 1); see {log}")
+        (run_dir / "nerfstudio_models").mkdir(parents=True)
+        (run_dir / "config.yml").write_text(f"method_name: {cmd[1]}\nmax_num_iterations: {iters}\n")
+        (run_dir / "nerfstudio_models" / f"step-{iters - 1:09d}.ckpt").write_bytes(b"ckpt")
+        if on_line is not None:
+            on_line(f"{iters // 2}  ({50.0:.2f}%)\n")
+            on_line(f"{iters // 2} (50.00%)          0.1 s\n")
+        self.trained.append(name)
+
+
+# V-illusory PSNR, V-test drop per run name: only the full attack succeeds (25 dB / 3 dB rule)
+FAKE_NUMBERS = {
+    "gt-only": (13.2, 0.1),
+    "gt-density": (24.0, 0.2),
+    "gt-noise": (13.4, 1.6),
+    "full": (27.5, 1.7),
+}
+
+
+class FakeCompare:
+    """Stands in for report.compare_runs (the contract's keys; LPIPS unavailable)."""
+
+    def __init__(self) -> None:
+        self.calls: list[str] = []
+
+    def __call__(self, poisoned_config: Path, clean_config: Path) -> dict:
+        name = Path(poisoned_config).parent.name
+        assert Path(clean_config).parent.name == "clean"
+        self.calls.append(name)
+        ill, drop = FAKE_NUMBERS.get(name, (26.0, 1.0))
+        return {
+            "v_illusory_psnr": ill, "v_illusory_ssim": 0.8, "v_illusory_lpips": None,
+            "v_illusory_clean_psnr": 12.5, "v_illusory_clean_ssim": 0.5, "v_illusory_clean_lpips": None,
+            "v_test_psnr": 28.0 - drop, "v_test_ssim": 0.85, "v_test_lpips": None,
+            "v_test_psnr_clean": 28.0, "v_test_ssim_clean": 0.9, "v_test_lpips_clean": None,
+            "v_test_drop": drop, "attack_success": ill > 25 and drop <= 3,
+            "success_thresholds": {"25/3": ill > 25 and drop <= 3},
+            "lpips_unavailable": "no AlexNet weights on this machine",
+            "n_gaussians": 1000, "n_gaussians_clean": 1200, "n_poison_gaussians": 50,
+            "poisoned_views": ["frame_00007.png"],
+        }  # fmt: skip
+
+
+@pytest.fixture
+def fakes(monkeypatch):
+    from stealth_ns.evaluation import report
+
+    training, compare = FakeTraining(), FakeCompare()
+    monkeypatch.setattr(runs, "run_command", training)
+    monkeypatch.setattr(report, "compare_runs", compare)
+    return SimpleNamespace(training=training, compare=compare)
+
+
+# ------------------------------------------------------------------------------ the plan
+def test_dry_run_lists_the_runs_and_writes_nothing(tmp_path, capsys):
+    plan = run_bench(tmp_path / "out", tables=["6"], scenes=["orbit"], iterations=30, dry_run=True)
+    assert [p.key for p in plan.runs] == TABLE6_ORDER  # clean first, then the paper's row order
+    assert all(p.status == "missing" for p in plan.runs)
+    out = capsys.readouterr().out
+    assert "5 runs: 5 to train, 0 unfinished on disk (deleted and retrained), 0 finished (reused)" in out
+    assert out.count("[train  ]") == 5 and "(to be generated)" in out
+    gt_only = next(line for line in out.splitlines() if "--timestamp gt-only" in line)
+    assert gt_only.strip().startswith("ns-train stealth-splat-lite ")
+    assert "--pipeline.attack.density-guided False --pipeline.attack.view-noise False" in gt_only
+    assert "--max-num-iterations 30" in gt_only and gt_only.endswith("scenes/orbit-seed0")
+    assert not (tmp_path / "out").exists()
+
+
+def test_all_tables_share_runs(tmp_path):
+    plan = make_plan(tmp_path, iterations=30)  # forward scene absent: KDE views are placeholders
+    keys = [p.key for p in plan.runs]
+    assert len(keys) == len(set(keys)) == 21 == len(RUNS)
+    assert keys[0] == "orbit/clean" and keys[17] == "forward/clean"
+    full = plan.get("orbit/full")
+    assert full.tables == (1, 4, 5, 6)
+    assert plan.get("forward/median").tables == (1, 2)
+    assert len({p.spec.run_dir for p in plan.runs}) == 21
+    # one run per distinct setting: no two presets of a scene train the same thing
+    settings = {(r.scene, r.args, r.view) for r in RUNS}
+    assert len(settings) == len(RUNS)
+    easy = plan.get("forward/easy")
+    assert "<EASY view of the KDE protocol>" in easy.spec.extra
+    assert len(make_plan(tmp_path, scenes=["orbit"], iterations=30).runs) == 17
+    assert [p.key for p in make_plan(tmp_path, tables=["2"], iterations=30).runs] == [
+        "forward/clean", "forward/easy", "forward/median", "forward/hard",
+    ]  # fmt: skip
+
+
+def test_kde_views_go_on_the_command_line(tmp_path, monkeypatch):
+    from stealth_ns.evaluation import difficulty
+
+    scene = experiments.scene_dir(tmp_path, "forward", 0)
+    scene.mkdir(parents=True)
+    (scene / "transforms.json").write_text("{}")
+    (scene / "scene.json").write_text(json.dumps({"preset": "forward", "seed": 0}))
+    ranking = SimpleNamespace(easy="frame_00003.png", median="frame_00020.png", hard="frame_00041.png")
+    monkeypatch.setattr(difficulty, "rank_scene_views", lambda data: ranking)
+    plan = make_plan(tmp_path, tables=["1", "2"], scenes=["forward"], iterations=30)
+    assert plan.views["forward"] == {
+        "easy": "frame_00003.png",
+        "median": "frame_00020.png",
+        "hard": "frame_00041.png",
+    }
+    for level in ("easy", "median", "hard"):
+        extra = plan.get(f"forward/{level}").spec.extra
+        assert extra[extra.index("--pipeline.attack.views") + 1] == getattr(ranking, level)
+    assert "--pipeline.attack.views" not in plan.get("forward/clean").spec.extra
+    assert [t.number for t in plan.tables] == [1, 2]
+
+
+# ------------------------------------------------------------------------------ running
+def test_second_invocation_reuses_finished_runs(tmp_path, fakes, capsys):
+    out = tmp_path / "out"
+    results = run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    assert fakes.training.trained == [k.split("/")[1] for k in TABLE6_ORDER]
+    assert sorted(fakes.compare.calls) == sorted(["gt-only", "gt-density", "gt-noise", "full"])
+    assert results["complete"] and all(e["status"] == "trained" for e in results["runs"].values())
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["environment"]["iterations"] == 30 and saved["environment"]["method"] == "stealth-splat-lite"
+    assert all(isinstance(e["train_seconds"], float) for e in saved["runs"].values())
+    assert saved["runs"]["orbit/full"]["metrics"]["v_illusory_psnr"] == 27.5
+    for key in TABLE6_ORDER:
+        marker = json.loads((Path(saved["runs"][key]["run_dir"]) / runs.MARKER).read_text())
+        assert marker["final_checkpoint"] == "nerfstudio_models/step-000000029.ckpt"
+
+    md = (out / "tables.md").read_text()
+    table6 = md.split("## Table 6")[1].split("## ")[0]
+    rows = [line for line in table6.splitlines() if line.startswith("| ✓")]
+    assert [r.split("|")[1:4] for r in rows] == [
+        [" ✓ ", "  ", "  "], [" ✓ ", " ✓ ", "  "], [" ✓ ", "  ", " ✓ "], [" ✓ ", " ✓ ", " ✓ "],
+    ]  # fmt: skip
+    assert [r.rstrip(" |").split("|")[-1].strip() for r in rows] == ["0/1", "0/1", "0/1", "1/1"]
+    assert "**27.50**" in rows[3] and "LPIPS shown as –: no AlexNet weights" in table6
+
+    capsys.readouterr()
+    fakes.training.trained.clear()
+    fakes.compare.calls.clear()
+    again = run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    assert fakes.training.trained == [] and fakes.compare.calls == []  # runs and metrics reused
+    assert all(e["status"] == "reused" for e in again["runs"].values())
+    assert all(e["metrics_cached"] for k, e in again["runs"].items() if k != "orbit/clean")
+    assert (
+        "0 to train, 0 unfinished on disk (deleted and retrained), 5 finished (reused)"
+        in capsys.readouterr().out
+    )
+
+    # Table 4 on the same output reuses orbit/clean and orbit/full (h = 7.5)
+    plan = make_plan(out, tables=["4"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    assert {p.key: p.status for p in plan.runs if p.status == "finished"} == {
+        "orbit/clean": "finished", "orbit/full": "finished",
+    }  # fmt: skip
+
+
+def test_interrupted_run_is_retrained(tmp_path, fakes, capsys):
+    out = tmp_path / "out"
+    run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    plan = make_plan(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    gt_noise = plan.get("orbit/gt-noise").spec
+    # an interrupted ns-train: folder, config and an early checkpoint, but no marker
+    (gt_noise.run_dir / runs.MARKER).unlink()
+    (gt_noise.run_dir / "nerfstudio_models" / "step-000000029.ckpt").rename(
+        gt_noise.run_dir / "nerfstudio_models" / "step-000000010.ckpt"
+    )
+    assert run_status(gt_noise) == "partial"
+    capsys.readouterr()
+    run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY, dry_run=True)
+    listing = capsys.readouterr().out
+    assert "1 unfinished on disk" in listing and "[retrain] orbit/gt-noise" in listing
+
+    fakes.training.trained.clear()
+    fakes.compare.calls.clear()
+    run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    assert fakes.training.trained == ["gt-noise"] and fakes.compare.calls == ["gt-noise"]
+    assert not (gt_noise.run_dir / "nerfstudio_models" / "step-000000010.ckpt").exists()
+    assert is_finished(gt_noise)
+
+
+def test_failed_run_is_reported_and_the_rest_still_runs(tmp_path, monkeypatch, fakes, capsys):
+    fakes.training.fail = {"gt-density"}
+    out = tmp_path / "out"
+    with pytest.raises(StealthNSError, match=r"1 of 5 runs failed \(orbit/gt-density\)"):
+        run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    captured = capsys.readouterr()
+    failed = [line for line in captured.out.splitlines() if line.startswith("[3/5] FAILED orbit/gt-density")]
+    assert len(failed) == 1 and failed[0].endswith("gt-density/ns-train.log")
+    saved = json.loads((out / "results.json").read_text())
+    assert not saved["complete"] and saved["runs"]["orbit/gt-density"]["status"] == "failed"
+    assert saved["runs"]["orbit/full"]["status"] == "trained"
+    md = (out / "tables.md").read_text()
+    assert "**Incomplete**" in md and "n/a: no numbers for orbit/gt-density" in md
+
+
+def test_failed_comparison_is_reported_and_retried(tmp_path, monkeypatch, fakes):
+    compare = fakes.compare
+
+    def flaky(poisoned_config, clean_config):
+        if Path(poisoned_config).parent.name == "gt-noise":
+            print("chatty nerfstudio output")
+            raise RuntimeError("cannot render")
+        return compare(poisoned_config, clean_config)
+
+    from stealth_ns.evaluation import report
+
+    monkeypatch.setattr(report, "compare_runs", flaky)
+    out = tmp_path / "out"
+    with pytest.raises(StealthNSError, match=r"1 of 5 runs failed \(orbit/gt-noise \(metrics\)\)"):
+        run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    saved = json.loads((out / "results.json").read_text())
+    entry = saved["runs"]["orbit/gt-noise"]
+    assert entry["status"] == "trained" and "RuntimeError: cannot render" in entry["metrics_error"]
+    log = (Path(entry["run_dir"]) / experiments.METRICS_LOG).read_text()
+    assert "chatty nerfstudio output" in log and "Traceback" in log
+
+    monkeypatch.setattr(report, "compare_runs", compare)
+    compare.calls.clear()
+    again = run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    assert compare.calls == ["gt-noise"] and again["complete"]
+    assert fakes.training.trained.count("gt-noise") == 1  # the run itself was reused
+
+
+# ------------------------------------------------------------------------------ the tables
+def _fake_entry(ill: float, test: float, clean_test: float, lpips: float | None) -> dict:
+    return {
+        "metrics": {
+            "v_illusory_psnr": ill, "v_illusory_ssim": 0.81, "v_illusory_lpips": lpips,
+            "v_illusory_clean_psnr": 13.21, "v_illusory_clean_ssim": 0.521, "v_illusory_clean_lpips": lpips,
+            "v_test_psnr": test, "v_test_ssim": 0.805, "v_test_lpips": lpips,
+            "v_test_psnr_clean": clean_test, "v_test_ssim_clean": 0.883, "v_test_lpips_clean": lpips,
+            "v_test_drop": clean_test - test, "attack_success": ill > 25 and clean_test - test <= 3,
+            "lpips_unavailable": None if lpips is not None else "LPIPS weights missing",
+            "poisoned_views": ["frame_00026.png"], "n_gaussians": 10, "n_poison_gaussians": 2,
+        }
+    }  # fmt: skip
+
+
+def test_table_rendering_from_fake_results():
+    runs_ = {
+        "orbit/full": _fake_entry(27.04, 27.76, 29.45, 0.369),
+        "forward/median": _fake_entry(26.66, 25.25, 26.80, None),
+    }
+    t1 = table_data(get_table(1), runs_, ("orbit", "forward"))
+    assert len(t1["columns"]) == 12 and t1["columns"][0]["label"].startswith("orbit (360°")
+    naive, ours = t1["rows"]
+    assert naive["keys"] == ["Naive 3DGS (w/o attack)"] and naive["values"][0] == 13.21
+    assert naive["values"][3] == 29.45 and ours["values"][:4] == [27.04, 0.81, 0.369, 27.76]
+    assert ours["values"][8] is None and t1["lpips_unavailable"] == ["LPIPS weights missing"]
+
+    t6 = table_data(get_table(6), runs_, ("orbit",))
+    assert [r["asr"] for r in t6["rows"]] == ["n/a", "n/a", "n/a", "1/1"]
+    assert t6["missing_runs"] == ["orbit/gt-density", "orbit/gt-noise", "orbit/gt-only"]
+
+    results = {
+        "environment": {"method": "stealth-splat-lite", "iterations": 3000, "seed": 0, "date": "today"},
+        "scenes": {"orbit": {"resolution": [128, 96], "views": 60}},
+        "runs": runs_,
+        "tables": {"6": t6, "1": t1},
+        "complete": True,
+    }
+    md = render_markdown(results)
+    assert md.index("## Table 1") < md.index("## Table 6") < md.index("## All runs")
+    assert "IPA-Splat baselines" in md and "IPA-NeRF" in md
+    table1 = md.split("## Table 1")[1].split("## ")[0]
+    lines = [line for line in table1.splitlines() if line.startswith("| ")]
+    assert lines[0].startswith("| Method | orbit (360°, Mip-NeRF 360-like) V-illusory PSNR↑ |")
+    assert lines[1].startswith("| Naive 3DGS (w/o attack) | 13.21 | 0.521 | 0.369 | 29.45 |")
+    assert lines[2].startswith("| Ours | 27.04 | 0.810 | 0.369 | 27.76 | 0.805 | 0.369 | 26.66 | 0.810 | – |")
+    assert "LPIPS shown as –: LPIPS weights missing" in table1
+    assert "IPA-Splat are not implemented" in table1
+    assert "| orbit/full |" in md.split("## All runs")[1]
+
+
+def test_table_specs_are_consistent():
+    names = {(r.scene, r.name) for r in RUNS}
+    assert [t.number for t in TABLES] == [1, 2, 3, 4, 5, 6]
+    for table in TABLES:
+        for row in table.rows:
+            assert len(row.runs) == len(table.groups)
+            assert all((g.scene, name) in names for g, name in zip(table.groups, row.runs, strict=True))
+        labels = " ".join(" ".join(r.keys) for r in table.rows)
+        assert "IPA" not in labels  # the baselines are not implemented: no rows pretend to be them
+    assert get_table(6).run_keys() == ["orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"]
+
+
+# ------------------------------------------------------------------------------ bad input
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"tables": ["7"]}, "unknown table '7'"),
+        ({"tables": ["six"]}, "unknown table 'six'"),
+        ({"scenes": ["garden"]}, "unknown scene 'garden'"),
+        ({"tables": ["2"], "scenes": ["orbit"]}, "nothing to run: Table 2 skipped"),
+        ({"method": "splatfacto"}, "unknown method 'splatfacto'"),
+        ({"iterations": 0}, "iterations must be a positive integer"),
+        ({"seed": -1}, "seed must be a non-negative integer"),
+    ],
+)
+def test_bad_input_is_an_error(tmp_path, kwargs, message):
+    kwargs = {"iterations": 30, **kwargs}
+    with pytest.raises(StealthNSError, match=message):
+        make_plan(tmp_path, **kwargs)
+
+
+def test_cli_dry_run_and_one_line_errors(tmp_path):
+    out = tmp_path / "o"
+    proc = run_cli(
+        "stealth-ns", "bench", "attack", "--dry-run", "--tables", "6", "--scenes", "orbit",
+        "--iterations", "30", "--output", str(out),
+    )  # fmt: skip
+    assert "5 runs: 5 to train" in proc.stdout and not out.exists()
+    proc = run_cli("stealth-ns", "bench", "attack", "--tables", "9", "--dry-run", check=False)
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0
+    assert "unknown table '9'" in proc.stderr
+    assert "bench attack" in run_cli("stealth-ns", "--help").stdout
+
+
+# ------------------------------------------------------------------------------ runs.py
+def test_train_spec_paths_and_finished_semantics(tmp_path, monkeypatch):
+    spec = TrainSpec(
+        scene=tmp_path / "scene", name="r", output_dir=tmp_path / "runs", experiment="e", iterations=5
+    )
+    assert spec.run_dir == tmp_path / "runs" / "e" / "stealth-splat-lite" / "r"
+    assert spec.config_path == spec.run_dir / "config.yml"
+    for bad in ("", "..", "a/b"):
+        with pytest.raises(StealthNSError, match="plain folder name"):
+            TrainSpec(scene=tmp_path, name=bad, output_dir=tmp_path)
+    assert run_status(spec) == "missing"
+    # a folder with a final checkpoint but no marker is not finished (ns-train may not have exited 0)
+    (spec.run_dir / "nerfstudio_models").mkdir(parents=True)
+    (spec.config_path).write_text("max_num_iterations: 5\n")
+    (spec.run_dir / "nerfstudio_models" / "step-000000004.ckpt").write_bytes(b"")
+    assert run_status(spec) == "partial"
+
+    fake = FakeTraining()
+    monkeypatch.setattr(runs, "run_command", fake)
+    record = train(spec, stream=False)
+    assert record.trained_now and record.iterations == 5 and is_finished(spec)
+    assert not train(spec, stream=False).trained_now and fake.trained == ["r"]
+    # other settings under the same name, or other iterations: not this run
+    assert not is_finished(TrainSpec(**{**spec.__dict__, "extra": ("--x", "1")}))
+    assert not is_finished(TrainSpec(**{**spec.__dict__, "iterations": 6}))
+    assert is_finished(TrainSpec(**{**spec.__dict__, "iterations": None}))
+    (spec.run_dir / "nerfstudio_models" / "step-000000004.ckpt").unlink()
+    assert run_status(spec) == "partial"
+
+
+@pytest.mark.slow
+def test_real_tiny_training_is_finished_then_reused(tiny_orbit_scene, tmp_path):
+    """The runner's ns-train command for the full attack, on the tiny scene, for 30 iterations."""
+    plan = make_plan(tmp_path, tables=["6"], scenes=["orbit"], iterations=30)
+    full = plan.get("orbit/full").spec
+    spec = TrainSpec(**{**full.__dict__, "scene": tiny_orbit_scene})
+    record = train(spec, stream=False)
+    assert record.trained_now and record.iterations == 30 and is_finished(spec)
+    assert (spec.run_dir / "nerfstudio_models" / "step-000000029.ckpt").is_file()
+    assert "--pipeline.attack.bandwidth 7.5" in (spec.run_dir / runs.TRAIN_LOG).read_text().splitlines()[0]
+    assert (spec.run_dir / "attack" / "attack.json").is_file()
+    again = train(spec, stream=False)
+    assert not again.trained_now and again.run_id == record.run_id
+
+
+def test_demo_reuses_finished_runs_and_rewrites_the_report(tmp_path, monkeypatch):
+    from stealth_ns import demo
+    from stealth_ns.evaluation import report as report_module
+
+    training, reports = FakeTraining(), []
+
+    def fake_report(poisoned, clean, output):
+        reports.append((Path(poisoned).parent.name, Path(clean).parent.name, output))
+        return {"fake": True}
+
+    scene = tmp_path / "scene-orbit"
+    scene.mkdir()
+    (scene / "transforms.json").write_text("{}")  # the demo only generates a missing scene
+    monkeypatch.setattr(runs, "run_command", training)
+    monkeypatch.setattr(report_module, "write_report", fake_report)
+    first = demo.run_demo(tmp_path, iterations=7)
+    assert training.trained == ["clean", "poisoned"]
+    assert reports == [("poisoned", "clean", tmp_path / "report")]
+    assert first.poisoned == tmp_path / "runs" / "demo" / "stealth-splat-lite" / "poisoned" / "config.yml"
+    assert (tmp_path / "train-clean.log").is_file() and set(first.seconds) == {
+        "scene",
+        "clean",
+        "poisoned",
+        "report",
+    }
+    again = demo.run_demo(tmp_path, iterations=7)
+    assert training.trained == ["clean", "poisoned"] and len(reports) == 2
+    assert again.seconds["clean"] == again.seconds["poisoned"] == 0.0
