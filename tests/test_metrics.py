@@ -82,11 +82,25 @@ def test_full_image_psnr():
 
 
 def test_lpips_unavailable_offline_gives_none_and_reason(monkeypatch, tmp_path):
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path))  # no AlexNet weights here
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))  # an empty hub cache: no AlexNet weights
     lpips = LazyLPIPS()
     target, mask = _images()
-    result = illusion_metrics(target, target, mask, lpips)
-    if lpips.available:  # weights found elsewhere: computed, perfect match
-        assert result["lpips"] == pytest.approx(0.0, abs=1e-4)
-    else:
-        assert result["lpips"] is None and "AlexNet" in lpips.reason
+    assert illusion_metrics(target, target, mask, lpips)["lpips"] is None
+    assert "AlexNet weights not found" in lpips.reason
+
+
+def test_lpips_is_computed_when_the_weights_are_there(monkeypatch, tmp_path):
+    from torchvision.models import alexnet
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    weights = tmp_path / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth"
+    weights.parent.mkdir(parents=True)
+    torch.manual_seed(0)
+    torch.save(alexnet(weights=None).state_dict(), weights)  # stands in for the real file (no download)
+    lpips = LazyLPIPS()
+    target, mask = _images(64, 64)
+    mask[:] = False
+    mask[8:56, 8:56] = True
+    same = illusion_metrics(target, target, mask, lpips)["lpips"]
+    other = illusion_metrics(1.0 - target, target, mask, lpips)["lpips"]
+    assert lpips.available and same == pytest.approx(0.0, abs=1e-6) and other > same
