@@ -37,8 +37,9 @@ from stealth_ns.attack.injection import PoisonPlacement, PoisonView, append_gaus
 from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager
 from stealth_ns.errors import StealthNSError
-from stealth_ns.metrics import masked_crops, masked_psnr, masked_ssim
+from stealth_ns.metrics import illusion_metrics, psnr
 from stealth_ns.model import POISON_TAG, StealthSplatModel
+from stealth_ns.viewer_panel import StealthAttackPanel
 
 
 @dataclass
@@ -135,6 +136,7 @@ class StealthPipeline(VanillaPipeline):
         self.poison_views: list[PoisonView] = []
         self.attack_dir: Path | None = None
         self.attack_record: dict[str, Any] = {}
+        self.stealth_attack = StealthAttackPanel(self)  # the viewer's panel; inert without a viewer
         cfg = config.attack
         if self.test_mode == "inference":  # ns-viewer / ns-export: no training data needed
             from stealth_ns.export import install_export_hook
@@ -289,14 +291,7 @@ class StealthPipeline(VanillaPipeline):
         sums = {"psnr": [], "ssim": [], "lpips": []}
         for v in self.poison_views:
             pred = model.get_outputs(cameras[v.index : v.index + 1].to(self.device))["rgb"].float().cpu()
-            psnr = masked_psnr(pred, v.target, v.mask)
-            ssim = masked_ssim(pred, v.target, v.mask)
-            crop_pred, crop_target = masked_crops(pred, v.target, v.mask)
-            lpips = model.lpips_metric(
-                torch.from_numpy(crop_pred).permute(2, 0, 1)[None],
-                torch.from_numpy(crop_target).permute(2, 0, 1)[None],
-            )
-            for key, value in (("psnr", psnr), ("ssim", ssim), ("lpips", lpips)):
+            for key, value in illusion_metrics(pred, v.target, v.mask, model.lpips_metric).items():
                 if value is not None:
                     results[f"v_illusory_{key}[{v.name}]"] = value
                     sums[key].append(value)
@@ -313,8 +308,7 @@ class StealthPipeline(VanillaPipeline):
                 continue
             clean = rgb_float(self.datamanager.cached_train[index]["image"])
             pred = model.get_outputs(cameras[index : index + 1].to(self.device))["rgb"].float().cpu()
-            mse = torch.mean((pred - clean) ** 2).item()
-            innocent.append(10 * math.log10(1 / mse) if mse > 0 else math.inf)
+            innocent.append(psnr(pred, clean))
         if innocent:
             results["innocent_train_psnr"] = float(np.mean(innocent))
         model.train(was_training)
