@@ -13,13 +13,11 @@ from stealth_ns.method_configs.base import gaussian_optimizers
 from stealth_ns.model import StealthSplatModel, StealthSplatModelConfig
 
 
-def camera(width: int = 48, height: int = 32, eye=(0.0, 0.0, 3.0)) -> Cameras:
-    """An OpenGL camera at ``eye`` looking down -z (towards the origin)."""
-    c2w = torch.eye(4)[:3]
-    c2w[:, 3] = torch.tensor(eye)
+def pinhole_cameras(camera_to_worlds: torch.Tensor, width: int = 48, height: int = 32) -> Cameras:
+    """Perspective cameras [N] with a 60 degree horizontal field of view and a centred principal point."""
     f = 0.5 * width / math.tan(math.radians(30))
     return Cameras(
-        camera_to_worlds=c2w[None],
+        camera_to_worlds=camera_to_worlds.float(),
         fx=f,
         fy=f,
         cx=width / 2,
@@ -28,6 +26,13 @@ def camera(width: int = 48, height: int = 32, eye=(0.0, 0.0, 3.0)) -> Cameras:
         height=height,
         camera_type=CameraType.PERSPECTIVE,
     )
+
+
+def camera(width: int = 48, height: int = 32, eye=(0.0, 0.0, 3.0)) -> Cameras:
+    """An OpenGL camera at ``eye`` looking down -z (towards the origin)."""
+    c2w = torch.eye(4)[:3]
+    c2w[:, 3] = torch.tensor(eye)
+    return pinhole_cameras(c2w[None], width, height)
 
 
 def build_model(n_points: int = 300, seed: int = 0, **config) -> tuple[StealthSplatModel, Optimizers]:

@@ -16,8 +16,8 @@ import pytest
 import torch
 import viser
 import viser.transforms as vtf
-from model_helpers import build_model, camera
-from nerfstudio.cameras.cameras import Cameras, CameraType
+from model_helpers import build_model, camera, pinhole_cameras
+from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.viewer.render_state_machine import RenderStateMachine
 from nerfstudio.viewer.utils import get_camera
 from nerfstudio.viewer.viewer import VISER_NERFSTUDIO_SCALE_RATIO, Viewer
@@ -63,17 +63,7 @@ def orbit_cameras(n: int, width: int = 48, height: int = 32, radius: float = 3.0
             for a in np.linspace(0, 2 * math.pi, n + 1)[:-1]
         ]
     )
-    f = 0.5 * width / math.tan(math.radians(30))
-    return Cameras(
-        camera_to_worlds=torch.from_numpy(c2w).float(),
-        fx=f,
-        fy=f,
-        cx=width / 2,
-        cy=height / 2,
-        width=width,
-        height=height,
-        camera_type=CameraType.PERSPECTIVE,
-    )
+    return pinhole_cameras(torch.from_numpy(c2w), width, height)
 
 
 # ----------------------------------------------------------------------------------------------- view lists
