@@ -5,16 +5,22 @@ Generates the default ``orbit`` scene, trains ``stealth-splat-lite`` on it twice
 attack report (``stealth-ns report``) comparing them: V-illusory, V-test and its drop, the
 paper's verdict, pictures. Every number printed is read from the report, which measured it.
 Finished runs are reused, so a second ``stealth-ns demo`` only rewrites the report.
+
+The two trainings run side by side, each on half of the CPU cores: on this 2-core machine that
+takes 8 min instead of 10 min one after the other (the Python side of a training step does
+not use the second core).
 """
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.evaluation.runs import TrainSpec, train
+from stealth_ns.evaluation.runs import TrainRecord, TrainSpec, train, train_progress
 
 
 @dataclass
@@ -68,14 +74,51 @@ def run_demo(output: Path, iterations: int | None = None, seed: int = 0) -> Demo
         t0 = time.perf_counter()
         print(make_scene(preset="orbit", output=scene, seed=seed, overwrite=True))
         seconds["scene"] = time.perf_counter() - t0
-    configs = {}
-    for name, extra in (("clean", ("--pipeline.attack.enabled", "False")), ("poisoned", ())):
-        spec = TrainSpec(scene, name, output / "runs", "demo", extra=extra, iterations=iterations, seed=seed)
-        record = train(spec, log=output / f"train-{name}.log", stream=True)
+    threads = max(1, (os.cpu_count() or 2) // 2)
+    specs = {
+        name: TrainSpec(
+            scene, name, output / "runs", "demo", extra, iterations=iterations, seed=seed, threads=threads
+        )
+        for name, extra in (("clean", ("--pipeline.attack.enabled", "False")), ("poisoned", ()))
+    }
+    records = train_side_by_side(specs, output)
+    for name, record in records.items():
         seconds[name] = record.seconds if record.trained_now else 0.0
-        configs[name] = spec.config_path
+    configs = {name: spec.config_path for name, spec in specs.items()}
     t0 = time.perf_counter()
     print("stealth-ns demo: writing the report (rendering both runs)")
     report = write_report(configs["poisoned"], configs["clean"], output / "report")
     seconds["report"] = time.perf_counter() - t0
     return DemoResult(scene, configs["clean"], configs["poisoned"], output / "report", report, seconds)
+
+
+def train_side_by_side(specs: dict[str, TrainSpec], output: Path) -> dict[str, TrainRecord]:
+    """Train (or reuse) every run concurrently, a progress bar each; logs in ``output/train-NAME.log``."""
+    from tqdm import tqdm
+
+    bars = {
+        name: tqdm(total=100, desc=f"training {name:<8}", position=i, bar_format="{l_bar}{bar}| {elapsed}")
+        for i, name in enumerate(specs)
+    }
+
+    def run(name: str) -> TrainRecord:
+        bar = bars[name]
+
+        def on_line(line: str) -> None:
+            pct = train_progress(line)
+            if pct is not None:
+                bar.n = pct
+                bar.refresh()
+
+        record = train(specs[name], log=output / f"train-{name}.log", stream=False, on_line=on_line)
+        bar.n = 100
+        bar.refresh()
+        return record
+
+    try:
+        with ThreadPoolExecutor(len(specs)) as pool:
+            futures = {name: pool.submit(run, name) for name in specs}
+            return {name: future.result() for name, future in futures.items()}
+    finally:
+        for bar in bars.values():
+            bar.close()

@@ -8,6 +8,7 @@ trains a real tiny run through :mod:`stealth_ns.evaluation.runs`.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -33,10 +34,12 @@ class FakeTraining:
 
     def __init__(self, fail: set[str] | None = None) -> None:
         self.trained: list[str] = []
+        self.envs: dict[str, dict | None] = {}
         self.fail = fail or set()
 
-    def __call__(self, cmd, log, stream=True, on_line=None) -> None:
+    def __call__(self, cmd, log, stream=True, on_line=None, env=None) -> None:
         name = _arg(cmd, "--timestamp")
+        self.envs[name] = env
         run_dir = Path(_arg(cmd, "--output-dir")) / _arg(cmd, "--experiment-name") / cmd[1] / name
         iters = int(_arg(cmd, "--max-num-iterations"))
         log.write_text("fake ns-train\n")
@@ -417,7 +420,9 @@ def test_demo_reuses_finished_runs_and_rewrites_the_report(tmp_path, monkeypatch
     monkeypatch.setattr(runs, "run_command", training)
     monkeypatch.setattr(report_module, "write_report", fake_report)
     first = demo.run_demo(tmp_path, iterations=7)
-    assert training.trained == ["clean", "poisoned"]
+    assert sorted(training.trained) == ["clean", "poisoned"]  # side by side, half the cores each
+    half = str(max(1, (os.cpu_count() or 2) // 2))
+    assert training.envs == {"clean": {"OMP_NUM_THREADS": half}, "poisoned": {"OMP_NUM_THREADS": half}}
     assert reports == [("poisoned", "clean", tmp_path / "report")]
     assert first.poisoned == tmp_path / "runs" / "demo" / "stealth-splat-lite" / "poisoned" / "config.yml"
     assert (tmp_path / "train-clean.log").is_file() and set(first.seconds) == {
@@ -427,5 +432,5 @@ def test_demo_reuses_finished_runs_and_rewrites_the_report(tmp_path, monkeypatch
         "report",
     }
     again = demo.run_demo(tmp_path, iterations=7)
-    assert training.trained == ["clean", "poisoned"] and len(reports) == 2
+    assert len(training.trained) == 2 and len(reports) == 2
     assert again.seconds["clean"] == again.seconds["poisoned"] == 0.0

@@ -20,7 +20,6 @@ import datetime as _dt
 import json
 import os
 import platform
-import re
 import subprocess
 import sys
 import time
@@ -41,6 +40,7 @@ from stealth_ns.evaluation.runs import (
     json_safe,
     run_status,
     train,
+    train_progress,
     write_json_atomic,
 )
 from stealth_ns.method_configs.attack_experiments import (
@@ -401,16 +401,13 @@ def pair_metrics(
 
 def _progress_parser(bar: Any, key: str) -> Callable[[str], None]:
     """An ``on_line`` callback that shows ns-train's "STEP (P%)" progress in the bar's postfix."""
-    pattern = re.compile(r"(\d+) \((\d+(?:\.\d+)?)%\)")
     last = [-1]
 
     def on_line(line: str) -> None:
-        match = pattern.search(line)
-        if match:
-            pct = int(float(match.group(2)))
-            if pct != last[0]:
-                last[0] = pct
-                bar.set_postfix_str(f"{key} training {pct}%")
+        pct = train_progress(line)
+        if pct is not None and int(pct) != last[0]:
+            last[0] = int(pct)
+            bar.set_postfix_str(f"{key} training {last[0]}%")
 
     return on_line
 

@@ -47,15 +47,30 @@ def bin_path(name: str) -> str:
     return str(Path(sys.executable).parent / name)
 
 
+#: ns-train's progress lines: "STEP (PERCENT%)".
+_PROGRESS = re.compile(r"(\d+) \((\d+(?:\.\d+)?)%\)")
+
+
+def train_progress(line: str) -> float | None:
+    """The percentage done in one line of ns-train's output, or None for other lines."""
+    match = _PROGRESS.search(line)
+    return float(match.group(2)) if match else None
+
+
 def run_command(
-    cmd: list[str], log: Path, stream: bool = True, on_line: Callable[[str], None] | None = None
+    cmd: list[str],
+    log: Path,
+    stream: bool = True,
+    on_line: Callable[[str], None] | None = None,
+    env: dict[str, str] | None = None,
 ) -> None:
     """Run ``cmd`` with its output written to ``log`` (and to the terminal when ``stream``).
 
-    ``on_line`` sees every output line (e.g. to follow progress). A non-zero exit raises
-    :class:`StealthNSError` naming the log; Ctrl-C stops the child before it propagates.
+    ``on_line`` sees every output line (e.g. to follow progress); ``env`` is added to the
+    environment. A non-zero exit raises :class:`StealthNSError` naming the log; Ctrl-C stops
+    the child before it propagates.
     """
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
     log.parent.mkdir(parents=True, exist_ok=True)
     with log.open("w") as fh:
         fh.write(f"$ {shlex.join(cmd)}\n")
@@ -102,6 +117,8 @@ class TrainSpec:
     """``--max-num-iterations``; None = the method's default."""
     seed: int = 0
     """``--machine.seed``."""
+    threads: int | None = None
+    """CPU threads of the training (OMP_NUM_THREADS); None = all cores. Not part of the run's identity."""
 
     def __post_init__(self) -> None:
         parts = {"run name": self.name, "experiment": self.experiment, "method": self.method}
@@ -245,7 +262,8 @@ def train(
     log = run_dir / TRAIN_LOG if log is None else log
     cmd = spec.command()
     t0 = time.perf_counter()
-    run_command(cmd, log, stream=stream, on_line=on_line)
+    threads = None if spec.threads is None else {"OMP_NUM_THREADS": str(spec.threads)}
+    run_command(cmd, log, stream=stream, on_line=on_line, env=threads)
     seconds = time.perf_counter() - t0
     if not spec.config_path.is_file():
         raise StealthNSError(f"ns-train exited without writing {spec.config_path}; see {log}")
