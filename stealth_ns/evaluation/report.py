@@ -28,6 +28,7 @@ from stealth_ns.attack.views import rotate_pose, scene_center, scene_up
 from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation.runs import json_safe
 from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr
+from stealth_ns.pipeline import rgb_float
 
 #: (V-illusory PSNR above, V-test drop at most) pairs: the paper's rule first, then its appendix's.
 SUCCESS_THRESHOLDS: tuple[tuple[float, float], ...] = ((25.0, 3.0), (25.0, 8.0), (20.0, 9.0), (15.0, 10.0))
@@ -110,32 +111,26 @@ def load_run(config_path: Path) -> LoadedRun:
 
 @torch.no_grad()
 def render(
-    run: LoadedRun, cameras: Any, index: int, c2w: np.ndarray | None = None, **filters: str
+    run: LoadedRun, cameras: Any, index: int, c2w: np.ndarray | None = None, render_filter: str = "all"
 ) -> np.ndarray:
     """Render camera ``index`` of ``cameras`` (optionally moved to ``c2w`` [3, 4]) -> [H, W, 3] in [0, 1].
 
-    ``filters``: ``render_filter="hide_poison"`` etc. for a StealthSplatModel.
+    ``render_filter``: "all", "hide_poison" or "only_poison" (a StealthSplatModel's filter).
     """
     model = run.model
-    camera = cameras[index : index + 1]
+    camera = cameras[index : index + 1].to("cpu")
     if c2w is not None:
-        camera = camera.to("cpu")
         camera.camera_to_worlds = torch.as_tensor(c2w, dtype=torch.float32)[None]
     model.eval()
     previous = getattr(model, "render_filter", "all")
-    if filters:
-        model.render_filter = filters["render_filter"]
+    if render_filter != "all":
+        model.render_filter = render_filter
     try:
         rgb = model.get_outputs(camera.to(model.device))["rgb"]
     finally:
-        if filters:
+        if render_filter != "all":
             model.render_filter = previous
     return rgb.float().clamp(0, 1).cpu().numpy()
-
-
-def _rgb(image: torch.Tensor) -> np.ndarray:
-    rgb = image[..., :3].float()
-    return (rgb / 255.0 if image.dtype == torch.uint8 else rgb).numpy()
 
 
 # ---------------------------------------------------------------------------- the numbers
@@ -298,7 +293,7 @@ def _innocent_strip(pair: RunPair, images: Path) -> list[dict[str, Any]]:
     picks = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(STRIP_VIEWS, n))}) if n else []
     strip = []
     for i in picks:
-        gt = _rgb(dm.cached_eval[i]["image"])
+        gt = rgb_float(dm.cached_eval[i]["image"]).numpy()
         clean, poisoned = render(pair.clean, cameras, i), render(pair.poisoned, cameras, i)
         files = {}
         for kind, image in (("gt", gt), ("clean", clean), ("poisoned", poisoned)):
