@@ -18,6 +18,8 @@ CPU backends the plain gradient is used with its own grow threshold
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -180,6 +182,16 @@ class StealthSplatModel(SplatfactoModel):
     def poison_mask(self) -> Tensor:
         """[N] bool: which Gaussians are poison."""
         return self.gauss_params[POISON_TAG] > 0.5
+
+    @contextlib.contextmanager
+    def filtered(self, render_filter: RenderFilter) -> Iterator[None]:
+        """Renders inside the block use ``render_filter`` (eval only); the previous one is restored after."""
+        previous = self.render_filter
+        self.render_filter = render_filter
+        try:
+            yield
+        finally:
+            self.render_filter = previous
 
     def step_cb(self, optimizers, step: int) -> None:
         """Splatfacto's before-iteration callback, plus an optimizer entry for the poison tag.

@@ -708,13 +708,12 @@ class StealthAttackPanel(ViewerElement[bool], ViewerControl):
         model = self._pipeline.model
         with self._train_lock():
             camera = self._pipeline.datamanager.train_dataset.cameras[index : index + 1].to(model.device)
-            was_training, previous = model.training, model.render_filter
+            was_training = model.training
             model.eval()
-            model.render_filter = render_filter
             try:
-                rgb = model.get_outputs(camera)["rgb"].float().cpu()
+                with model.filtered(render_filter):
+                    rgb = model.get_outputs(camera)["rgb"].float().cpu()
             finally:
-                model.render_filter = previous
                 model.train(was_training)
         return masked_psnr(rgb, data.target, data.mask)
 
@@ -737,12 +736,8 @@ class StealthAttackPanel(ViewerElement[bool], ViewerControl):
         def get_outputs_for_camera(camera: Any, obb_box: Any = None) -> dict[str, Any]:
             if panel.render_filter == "all" or not isinstance(threading.current_thread(), RenderStateMachine):
                 return original(camera, obb_box=obb_box)
-            previous = model.render_filter
-            model.render_filter = panel.render_filter
-            try:
+            with model.filtered(panel.render_filter):
                 return original(camera, obb_box=obb_box)
-            finally:
-                model.render_filter = previous
 
         object.__setattr__(model, "get_outputs_for_camera", get_outputs_for_camera)
         object.__setattr__(model, "_stealth_panel_wrapped", True)

@@ -13,6 +13,7 @@ clean and poisoned renders of cameras orbited up to +-20 degrees from each poiso
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import html
 import json
@@ -122,14 +123,9 @@ def render(
     if c2w is not None:
         camera.camera_to_worlds = torch.as_tensor(c2w, dtype=torch.float32)[None]
     model.eval()
-    previous = getattr(model, "render_filter", "all")
-    if render_filter != "all":
-        model.render_filter = render_filter
-    try:
+    # the clean run may be any splatting model; only a StealthSplatModel has the filter
+    with model.filtered(render_filter) if render_filter != "all" else contextlib.nullcontext():
         rgb = model.get_outputs(camera.to(model.device))["rgb"]
-    finally:
-        if render_filter != "all":
-            model.render_filter = previous
     return rgb.float().clamp(0, 1).cpu().numpy()
 
 
