@@ -6,22 +6,17 @@ import json
 
 import pytest
 import torch
-from conftest import run_cli
+from conftest import run_cli, train_tiny
 from plyfile import PlyData
 
 
 @pytest.mark.slow
 def test_ns_train_attack_then_ns_eval_on_cpu(tiny_orbit_scene, tmp_path):
-    out = tmp_path / "runs"
-    run_cli(
-        "ns-train", "stealth-splat-lite", "--vis", "tensorboard", "--output-dir", str(out),
-        "--experiment-name", "tiny", "--timestamp", "run", "--max-num-iterations", "60",
-        "--steps-per-eval-all-images", "1000", "--pipeline.attack.injection-step", "20",
-        "--pipeline.attack.illusion", "horse",
-        "nerfstudio-data", "--data", str(tiny_orbit_scene),
+    config = train_tiny(
+        tiny_orbit_scene, tmp_path / "runs", "run",
+        "--pipeline.attack.injection-step", "20", "--pipeline.attack.illusion", "horse",
     )  # fmt: skip
-    run_dir = out / "tiny" / "stealth-splat-lite" / "run"
-    config = run_dir / "config.yml"
+    run_dir = config.parent
     assert list((run_dir / "nerfstudio_models").glob("step-*.ckpt"))
 
     record = json.loads((run_dir / "attack" / "attack.json").read_text())

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import run_cli
+from conftest import train_tiny
 from scipy import ndimage
 
 pytestmark = pytest.mark.slow
@@ -96,25 +96,17 @@ def wait_for(condition: Callable[[], object], timeout: float, what: str, interva
 
 
 @pytest.fixture(scope="module")
-def run_config(tmp_path_factory) -> Path:
+def run_config(tiny_orbit_scene, tmp_path_factory) -> Path:
     """config.yml of a tiny attacked run, trained with nerfstudio's viewer (and so the panel) on."""
     if os.environ.get("STEALTH_NS_VIEWER_RUN"):
         return Path(os.environ["STEALTH_NS_VIEWER_RUN"])
-    from stealth_ns.scenes import make_scene
-
-    root = tmp_path_factory.mktemp("viewer_browser")
-    scene = root / "scene"
-    make_scene(preset="orbit", output=scene, resolution="64x48", views=16, seed=0)
-    proc = run_cli(
-        "ns-train", "stealth-splat-lite", "--vis", "viewer", "--viewer.quit-on-train-completion", "True",
+    return train_tiny(
+        tiny_orbit_scene, tmp_path_factory.mktemp("viewer_browser"), "run",
+        "--viewer.quit-on-train-completion", "True",
         "--viewer.websocket-host", "127.0.0.1", "--viewer.websocket-port", str(free_port()),
-        "--output-dir", str(root / "runs"), "--experiment-name", "tiny", "--timestamp", "run",
-        "--max-num-iterations", "200", "--pipeline.model.num-downscales", "0",
-        "--pipeline.attack.illusion", "horse",
-        "nerfstudio-data", "--data", str(scene),
+        "--pipeline.model.num-downscales", "0", "--pipeline.attack.illusion", "horse",
+        iterations=200, vis="viewer",
     )  # fmt: skip
-    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
-    return root / "runs" / "tiny" / "stealth-splat-lite" / "run" / "config.yml"
 
 
 @pytest.fixture(scope="module")
