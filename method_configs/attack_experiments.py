@@ -2,18 +2,25 @@
 
 Installed as ``stealth_ns.method_configs.attack_experiments``. Everything here is declarative:
 
-* :data:`RUNS` -- every training run, one :class:`RunSpec` per (scene, name). A run that several
-  tables show is defined once: ``full`` (all three components, h = 7.5, sigma0 = 100, linear
-  decay, the median-indexed view) is Table 1's orbit "Ours", Table 4's h = 7.5, Table 5's
-  100/linear and Table 6's last row. Every attack run spells out all the settings the tables
-  vary, so a run never depends on the attack's defaults.
+* :data:`SCENE_KINDS` -- each scene's *kind*, which says how its poisoned views are chosen and
+  which runs it has (:func:`scene_runs`): ``uniform`` scenes (``orbit``) poison the
+  median-indexed frame and carry every ablation; ``kde`` scenes (``forward``, ``facing``,
+  ``fox`` and any other dataset folder) are poisoned at the Easy / Median / Hard views of the KDE
+  difficulty protocol.
+* :data:`RUNS` -- every training run of the declared scenes, one :class:`RunSpec` per (scene,
+  name). A run that several tables show is defined once: ``full`` (all three components, h =
+  7.5, sigma0 = 100, linear decay, the median-indexed view) is Table 1's orbit "Ours", Table 4's
+  h = 7.5, Table 5's 100/linear and Table 6's last row. Every attack run spells out all the
+  settings the tables vary, so a run never depends on the attack's defaults.
 * :data:`TABLES` -- the paper's Tables 1-6 (:class:`TableSpec`): column groups (a scene, or a
-  difficulty level of one scene) and rows, each naming the run it shows in each group.
+  difficulty level of one scene) and rows, each naming the run it shows in each group. Tables 1
+  and 2 also take any other dataset folder given to ``--scenes`` (:meth:`TableSpec.for_scenes`).
 
-Scenes are the generated presets: ``orbit`` stands in for the paper's Mip-NeRF 360 (inward
-360 degree captures; the paper poisons the median-indexed frame) and ``forward`` for its Free
-dataset (free trajectories; views picked by the KDE difficulty protocol: Easy / Median /
-Hard). As in the paper, Table 1's Free column is the Median view of Table 2.
+Scenes: the generated presets ``orbit`` (stands in for the paper's Mip-NeRF 360: inward 360
+degree captures, the median-indexed frame is poisoned), ``forward`` (its Free dataset: free
+trajectories), ``facing`` (LLFF-like forward-facing captures) and the real capture ``fox``
+(instant-ngp's hand-held phone capture, read from a dataset folder). As in the paper, Table 1's
+column of a KDE scene is the Median view of Table 2.
 
 The paper's baselines -- IPA-NeRF (Nerfacto), IPA-NeRF (Instant-NGP) and IPA-Splat -- are not
 implemented in stealth-ns: no table here has rows for them.
@@ -21,19 +28,47 @@ implemented in stealth-ns: no table here has rows for them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
-#: The scene presets of ``stealth_ns.scenes`` the experiments run on.
-SCENES: tuple[str, ...] = ("orbit", "forward")
+#: Generated scenes (presets of ``stealth_ns.scenes``) the experiments run on.
+PRESETS: tuple[str, ...] = ("orbit", "forward", "facing")
+#: Dataset folders with a declared place in the tables, and where the default ``--scenes`` looks
+#: for them (relative to the current directory).
+FOLDERS: dict[str, str] = {"fox": "../shared/data/fox"}
+#: The declared scenes, in column order.
+SCENES: tuple[str, ...] = (*PRESETS, *FOLDERS)
+#: The default of ``--scenes``: every preset and every declared folder (skipped when absent).
+DEFAULT_SCENES: tuple[str, ...] = (*PRESETS, *(f"{name}={path}" for name, path in FOLDERS.items()))
 SCENE_LABELS: dict[str, str] = {
     "orbit": "orbit (360°, Mip-NeRF 360-like)",
     "forward": "forward (free trajectory, Free-like)",
+    "facing": "facing (forward-facing, LLFF-like)",
+    "fox": "fox (real hand-held capture)",
 }
+
+#: How a scene's poisoned views are chosen (and so which runs it has).
+SceneKind = Literal["uniform", "kde"]
+SCENE_KINDS: dict[str, SceneKind] = {"orbit": "uniform", "forward": "kde", "facing": "kde", "fox": "kde"}
+#: The kind of a dataset folder that is not declared above (``--scenes mine=PATH``).
+FOLDER_KIND: SceneKind = "kde"
+
+
+def scene_kind(scene: str) -> SceneKind:
+    """The kind of ``scene``: declared in :data:`SCENE_KINDS`, else a dataset folder's."""
+    return SCENE_KINDS.get(scene, FOLDER_KIND)
+
+
+def scene_label(scene: str) -> str:
+    """A scene's label in table headers."""
+    return SCENE_LABELS.get(scene, f"{scene} (dataset folder)")
+
 
 #: How a run picks its poisoned view: the median-indexed training frame (the attack's default,
 #: the paper's choice for uniform captures) or a level of the KDE difficulty protocol.
 ViewChoice = Literal["median-index", "easy", "median", "hard"]
+#: The KDE protocol's levels, as run names and view choices of a ``kde`` scene.
+KDE_LEVELS: tuple[ViewChoice, ...] = ("easy", "median", "hard")
 #: Metric families of a column group: masked metrics at the poisoned view(s), held-out views.
 Metric = Literal["v_illusory", "v_test"]
 
@@ -45,7 +80,7 @@ class RunSpec:
     """One training run of a scene: its name (the run folder) and its ns-train options."""
 
     scene: str
-    """A scene preset (:data:`SCENES`)."""
+    """A scene: a preset or a dataset folder's name (``--scenes NAME=PATH``)."""
     name: str
     """Run name, unique per scene: the run folder's name."""
     args: tuple[str, ...] = ()
@@ -109,26 +144,27 @@ def _noise_run(sigma0: float, decay: str) -> str:
     return "full" if (sigma0, decay) == (100.0, "linear") else f"sigma{sigma0:g}-{decay}"
 
 
-def _runs() -> tuple[RunSpec, ...]:
-    orbit: list[RunSpec] = [
-        RunSpec("orbit", "clean", CLEAN_ARGS, clean=True, label="clean (no attack)"),
-        RunSpec("orbit", "full", attack_args(), label="all three components (the paper's method)"),
-        RunSpec("orbit", "gt-only", attack_args(density_guided=False, view_noise=False), label="GT only"),
-        RunSpec("orbit", "gt-density", attack_args(view_noise=False), label="GT + density-guided"),
-        RunSpec("orbit", "gt-noise", attack_args(density_guided=False), label="GT + view noise"),
+def _uniform_runs(scene: str) -> list[RunSpec]:
+    """A uniform capture (orbit): the median-indexed view, every ablation of Tables 1, 3-6."""
+    runs: list[RunSpec] = [
+        RunSpec(scene, "clean", CLEAN_ARGS, clean=True, label="clean (no attack)"),
+        RunSpec(scene, "full", attack_args(), label="all three components (the paper's method)"),
+        RunSpec(scene, "gt-only", attack_args(density_guided=False, view_noise=False), label="GT only"),
+        RunSpec(scene, "gt-density", attack_args(view_noise=False), label="GT + density-guided"),
+        RunSpec(scene, "gt-noise", attack_args(density_guided=False), label="GT + view noise"),
     ]
-    orbit += [
-        RunSpec("orbit", f"views-{k}", attack_args(multi_view=k), label=f"{k} poisoned views")
+    runs += [
+        RunSpec(scene, f"views-{k}", attack_args(multi_view=k), label=f"{k} poisoned views")
         for k in MULTI_VIEWS
     ]
-    orbit += [
-        RunSpec("orbit", _bandwidth_run(h), attack_args(bandwidth=h), label=f"bandwidth h={h:g}")
+    runs += [
+        RunSpec(scene, _bandwidth_run(h), attack_args(bandwidth=h), label=f"bandwidth h={h:g}")
         for h in BANDWIDTHS
         if _bandwidth_run(h) != "full"
     ]
-    orbit += [
+    runs += [
         RunSpec(
-            "orbit",
+            scene,
             _noise_run(s, d),
             attack_args(noise_sigma0=s, noise_decay=d),
             label=f"noise sigma0={s:g}, {d} decay",
@@ -137,29 +173,42 @@ def _runs() -> tuple[RunSpec, ...]:
         for d, _ in NOISE_DECAYS
         if _noise_run(s, d) != "full"
     ]
-    forward = [RunSpec("forward", "clean", CLEAN_ARGS, clean=True, label="clean (no attack)")]
-    forward += [
-        RunSpec("forward", level, attack_args(), view=level, label=f"{level.capitalize()} view (KDE)")
-        for level in ("easy", "median", "hard")
+    return runs
+
+
+def _kde_runs(scene: str) -> list[RunSpec]:
+    """A KDE scene (free trajectory, forward-facing, real capture): Easy / Median / Hard views."""
+    runs = [RunSpec(scene, "clean", CLEAN_ARGS, clean=True, label="clean (no attack)")]
+    runs += [
+        RunSpec(scene, level, attack_args(), view=level, label=f"{level.capitalize()} view (KDE)")
+        for level in KDE_LEVELS
     ]
-    return (*orbit, *forward)
+    return runs
 
 
-#: Every run, clean baselines first within each scene.
-RUNS: tuple[RunSpec, ...] = _runs()
+_KIND_RUNS = {"uniform": _uniform_runs, "kde": _kde_runs}
+
+
+def scene_runs(scene: str) -> tuple[RunSpec, ...]:
+    """Every run of ``scene`` (declared or a dataset folder), by its kind; the clean baseline first."""
+    return tuple(_KIND_RUNS[scene_kind(scene)](scene))
+
+
+#: Every run of the declared scenes, clean baselines first within each scene.
+RUNS: tuple[RunSpec, ...] = tuple(run for scene in SCENES for run in scene_runs(scene))
 
 
 def get_run(scene: str, name: str) -> RunSpec:
     """The run ``name`` of ``scene`` (KeyError if none)."""
-    for run in RUNS:
-        if run.scene == scene and run.name == name:
+    for run in scene_runs(scene):
+        if run.name == name:
             return run
     raise KeyError(f"{scene}/{name}")
 
 
 def clean_run(scene: str) -> RunSpec:
     """The clean baseline of ``scene``."""
-    (run,) = (r for r in RUNS if r.scene == scene and r.clean)
+    (run,) = (r for r in scene_runs(scene) if r.clean)
     return run
 
 
@@ -172,9 +221,15 @@ BOTH: tuple[Metric, ...] = ("v_illusory", "v_test")
 class Group:
     """A column group: one scene's numbers (V-illusory and/or V-test, PSNR/SSIM/LPIPS each)."""
 
-    label: str
     scene: str
+    level: str = ""
+    """A sub-column of the scene (Table 2's "Easy", "Median", "Hard"); empty for the scene itself."""
     metrics: tuple[Metric, ...] = BOTH
+
+    @property
+    def label(self) -> str:
+        """The group's header: the scene's label, or ``scene Level``."""
+        return f"{self.scene} {self.level}" if self.level else scene_label(self.scene)
 
 
 @dataclass(frozen=True)
@@ -191,7 +246,7 @@ class Row:
 
 @dataclass(frozen=True)
 class TableSpec:
-    """One of the paper's tables, reproduced on the generated scenes."""
+    """One of the paper's tables, reproduced on the generated scenes and dataset folders."""
 
     number: int
     title: str
@@ -202,11 +257,30 @@ class TableSpec:
     """Add the attack-success-rate column (V-illusory > 25 dB and V-test drop <= 3 dB), as n/N
     over the row's column groups (scenes)."""
     notes: tuple[str, ...] = ()
+    template: str | None = None
+    """A declared scene whose column groups (and runs) every other scene of its kind given to
+    ``--scenes`` gets too (see :meth:`for_scenes`); None: the table has its declared groups only."""
 
     @property
     def scenes(self) -> tuple[str, ...]:
         """The scenes this table needs, in column order."""
         return tuple(dict.fromkeys(g.scene for g in self.groups))
+
+    def for_scenes(self, scenes: tuple[str, ...]) -> TableSpec:
+        """This table with column groups for the scenes of ``scenes`` it does not declare, when they
+        are of its template's kind (a dataset folder ``mine=PATH`` gets columns like ``fox``)."""
+        if self.template is None:
+            return self
+        kind = scene_kind(self.template)
+        extra = [s for s in scenes if s not in self.scenes and scene_kind(s) == kind]
+        if not extra:
+            return self
+        like = [i for i, g in enumerate(self.groups) if g.scene == self.template]
+        groups = self.groups + tuple(replace(self.groups[i], scene=s) for s in extra for i in like)
+        rows = tuple(
+            replace(r, runs=r.runs + tuple(r.runs[i] for _ in extra for i in like)) for r in self.rows
+        )
+        return replace(self, groups=groups, rows=rows)
 
     def run_keys(self, scenes: tuple[str, ...] | None = None) -> list[str]:
         """``scene/name`` of every run the table shows (its clean baselines excluded)."""
@@ -227,33 +301,48 @@ NAIVE_NOTE = (
     '"Naive 3DGS (w/o attack)" is the clean run: V-illusory renders it at the poisoned view against '
     "the same illusion target, V-test on the held-out views."
 )
-_ORBIT_ONLY = Group("orbit", "orbit")
+_ORBIT_ONLY = Group("orbit")
+#: The scenes of the KDE protocol's Easy / Median / Hard views, in column order.
+KDE_SCENES: tuple[str, ...] = tuple(s for s in SCENES if scene_kind(s) == "kde")
+
+
+def _single_view_run(scene: str) -> str:
+    """Table 1's run of a scene: the median-indexed view (uniform) or the KDE Median view."""
+    return "full" if scene_kind(scene) == "uniform" else "median"
+
+
+_TABLE1_RUNS = tuple(_single_view_run(s) for s in SCENES)
+_TABLE2_GROUPS = tuple(Group(s, level.capitalize(), V_ILLUSORY) for s in KDE_SCENES for level in KDE_LEVELS)
+_TABLE2_RUNS = tuple(g.level.lower() for g in _TABLE2_GROUPS)
 
 TABLES: tuple[TableSpec, ...] = (
     TableSpec(
         number=1,
         title="Single-view attack",
         key_header=("Method",),
-        groups=(Group(SCENE_LABELS["orbit"], "orbit"), Group(SCENE_LABELS["forward"], "forward")),
+        groups=tuple(Group(s) for s in SCENES),
         rows=(
-            Row(("Naive 3DGS (w/o attack)",), ("full", "median"), naive=True),
-            Row(("Ours",), ("full", "median")),
+            Row(("Naive 3DGS (w/o attack)",), _TABLE1_RUNS, naive=True),
+            Row(("Ours",), _TABLE1_RUNS),
         ),
         notes=(
             NO_BASELINES,
             NAIVE_NOTE,
-            "Poisoned view: orbit, the median-indexed training frame; forward, the KDE protocol's "
-            "Median view (as in the paper, whose Free column is its Table 2 Median column).",
+            "Poisoned view: orbit, the median-indexed training frame; "
+            + ", ".join(KDE_SCENES[:-1])
+            + f" and {KDE_SCENES[-1]} (and any other dataset folder), the KDE protocol's Median view "
+            "(as in the paper, whose Free column is its Table 2 Median column).",
         ),
+        template="fox",
     ),
     TableSpec(
         number=2,
-        title="Single-view attack at the KDE difficulty levels (forward scene, V-illusory)",
+        title="Single-view attack at the KDE difficulty levels (V-illusory)",
         key_header=("Method",),
-        groups=tuple(Group(label, "forward", V_ILLUSORY) for label in ("Easy", "Median", "Hard")),
+        groups=_TABLE2_GROUPS,
         rows=(
-            Row(("Naive 3DGS (w/o attack)",), ("easy", "median", "hard"), naive=True),
-            Row(("Ours",), ("easy", "median", "hard")),
+            Row(("Naive 3DGS (w/o attack)",), _TABLE2_RUNS, naive=True),
+            Row(("Ours",), _TABLE2_RUNS),
         ),
         notes=(
             NO_BASELINES,
@@ -261,6 +350,7 @@ TABLES: tuple[TableSpec, ...] = (
             "Easy / Median / Hard: the training views of minimum / median / maximum KDE density in "
             "their frustum (the paper's evaluation protocol).",
         ),
+        template="fox",
     ),
     TableSpec(
         number=3,

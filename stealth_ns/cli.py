@@ -19,16 +19,21 @@ from stealth_ns.evaluation.difficulty import RankViews
 
 @dataclass
 class MakeScene:
-    """Generate a procedural scene in nerfstudio-data format (images, poses, seed points, depth)."""
+    """Generate a procedural scene (images, poses, depth; seed points except for Blender format)."""
 
     output: Path
     """Folder to write (created; must be empty unless --overwrite)."""
-    preset: Literal["orbit", "forward"] = "orbit"
-    """orbit: inward-facing 360 capture (Mip-NeRF 360 like); forward: free forward trajectory (Free like)."""
-    resolution: str = "128x96"
-    """Image size as WIDTHxHEIGHT in pixels."""
+    preset: Literal["orbit", "forward", "facing", "object"] = "orbit"
+    """orbit: inward-facing 360 capture (Mip-NeRF 360 like), nerfstudio-data format;
+    forward: free forward trajectory (Free like), nerfstudio-data format;
+    facing: forward-facing hand-held capture of a cluttered scene (LLFF like), nerfstudio-data format;
+    object: 1-3 objects on a transparent background seen from the upper hemisphere (NeRF-synthetic
+    like), Blender format (train with blender-data)."""
+    resolution: str | None = None
+    """Image size as WIDTHxHEIGHT in pixels (default: 128x96; 128x128 for object)."""
     views: int | None = None
-    """Number of views (default: 60 for orbit, 48 for forward); at least 8."""
+    """Number of views, at least 8 (default: 60 orbit, 48 forward, 24 facing, 150 object = 100 train
+    + 25 val + 25 test)."""
     seed: int = 0
     """Random seed: the same seed gives byte-identical files."""
     overwrite: bool = False
@@ -105,15 +110,19 @@ class Report:
 
 @dataclass
 class BenchAttack:
-    """Reproduce the paper's Tables 1-6 on the generated scenes: train the runs, write the tables."""
+    """Reproduce the paper's Tables 1-6 on generated scenes and dataset folders: train, write the tables."""
 
     output: Path = Path("bench-attack-output")
     """Folder for the scenes, the runs (reused when finished), tables.md and results.json."""
     tables: tuple[str, ...] = ("1", "2", "3", "4", "5", "6")
     """Paper tables to reproduce: 1 single view, 2 Easy/Median/Hard, 3 multi-view, 4 KDE bandwidth,
     5 noise schedule, 6 attack components (with ASR)."""
-    scenes: tuple[str, ...] = ("orbit", "forward")
-    """Generated scenes: orbit (360°, Mip-NeRF 360-like), forward (free trajectory, Free-like)."""
+    scenes: tuple[str, ...] = ("orbit", "forward", "facing", "fox=../shared/data/fox")
+    """Generated presets (orbit: 360°, Mip-NeRF 360-like; forward: free trajectory, Free-like;
+    facing: forward-facing, LLFF-like) and dataset folders as NAME=PATH (nerfstudio-data, COLMAP
+    sparse/0 + images, or Blender; used in place, never written; seed points triangulated into
+    OUTPUT/scenes/NAME when the dataset has none). Folders join Tables 1-2 with their KDE views. A
+    folder of this default that is absent is skipped with a note; one you name is required."""
     iterations: int | None = None
     """Training iterations of every run (default: the method's, 3000 for stealth-splat-lite)."""
     method: str = "stealth-splat-lite"
@@ -125,16 +134,55 @@ class BenchAttack:
 
     def main(self) -> None:
         from stealth_ns.evaluation.experiments import run_bench
+        from stealth_ns.method_configs.attack_experiments import DEFAULT_SCENES
 
         run_bench(
             output=self.output,
             tables=self.tables,
-            scenes=self.scenes,
+            # the default list (None) skips its absent folders; scenes given explicitly must exist
+            scenes=None if tuple(self.scenes) == DEFAULT_SCENES else self.scenes,
             method=self.method,
             iterations=self.iterations,
             seed=self.seed,
             dry_run=self.dry_run,
         )
+
+
+@dataclass
+class SeedPoints:
+    """Triangulate seed points (sparse_pc.ply) for a known-pose capture from its images and poses."""
+
+    data: Path
+    """nerfstudio-data folder (transforms.json), a transforms JSON file, or a Blender-format folder
+    (transforms_train.json)."""
+    output: Path | None = None
+    """Folder for transforms.json + sparse_pc.ply, image paths pointing back to DATA (for a read-only
+    dataset). Default: write sparse_pc.ply and a copy transforms_seeded.json into DATA."""
+    overwrite: bool = False
+    """Without --output: update DATA's transforms file in place (ply_file_path) and replace its
+    sparse_pc.ply. With --output: replace OUTPUT's transforms.json and sparse_pc.ply."""
+    max_points: int | None = None
+    """Keep at most this many points (a random subset drawn with --seed)."""
+    min_views: int = 3
+    """Keep points seen in at least this many images (2 gives more, noisier points)."""
+    max_error: float = 2.0
+    """Keep points whose mean reprojection error is at most this many pixels."""
+    seed: int = 0
+    """Seed of COLMAP's RANSAC and of the --max-points subset: the same seed gives the same PLY."""
+
+    def main(self) -> None:
+        from stealth_ns.seed_points import make_seed_points
+
+        summary = make_seed_points(
+            data=self.data,
+            output=self.output,
+            overwrite=self.overwrite,
+            max_points=self.max_points,
+            seed=self.seed,
+            min_views=self.min_views,
+            max_error=self.max_error,
+        )
+        print(summary)
 
 
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
@@ -146,6 +194,7 @@ COMMANDS: dict[str, type] = {
     "bench raster": BenchRaster,
     "bench attack": BenchAttack,
     "rank-views": RankViews,
+    "seed-points": SeedPoints,
 }
 
 

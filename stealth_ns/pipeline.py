@@ -35,10 +35,11 @@ from stealth_ns.attack.illusion import (
 )
 from stealth_ns.attack.injection import PoisonPlacement, PoisonView, append_gaussians, place_poison
 from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
+from stealth_ns.attack.visibility import CameraDepths
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager
 from stealth_ns.errors import StealthNSError
 from stealth_ns.metrics import illusion_metrics, psnr
-from stealth_ns.model import POISON_TAG, StealthSplatModel
+from stealth_ns.model import POISON_TAG, StealthSplatModel, viewmat_from_c2w
 from stealth_ns.viewer_panel import StealthAttackPanel
 
 
@@ -106,6 +107,27 @@ def build_poison_views(cfg: AttackConfig, datamanager: StealthDataManager) -> li
     return views
 
 
+def check_seed_points(model: StealthSplatModel, datamanager: StealthDataManager) -> None:
+    """Stop unless the model starts from seed points: the density-guided placement reads the
+    density of the point cloud, and that of a random initialisation is noise."""
+    points = model.seed_points[0] if model.seed_points is not None else None
+    if model.config.random_init or points is None or points.shape[0] == 0:
+        data = datamanager.config.dataparser.data
+        why = (
+            "--pipeline.model.random-init is on"
+            if model.config.random_init
+            else "the dataset has no seed points (no ply_file_path in transforms.json, no COLMAP points, "
+            "or a Blender dataset)"
+            if points is None
+            else "the seed-point file is empty"
+        )
+        fail(
+            f"the density-guided injection places poison by the density of the seed points, but {why}. "
+            f"Triangulate them from the known poses with `stealth-ns seed-points --data {data}` and train "
+            "on the dataset it prints, or turn the component off with --pipeline.attack.density-guided False"
+        )
+
+
 def rgb_float(image: torch.Tensor) -> torch.Tensor:
     """[H, W, 3 or 4] uint8 or float cached image -> [H, W, 3] float in [0, 1]."""
     rgb = image[..., :3].float()
@@ -149,6 +171,8 @@ class StealthPipeline(VanillaPipeline):
             self.model, StealthSplatModel
         ):
             fail("the attack needs stealth-ns' datamanager and model (use the stealth-splat methods)")
+        if cfg.density_guided:
+            check_seed_points(self.model, self.datamanager)
         try:
             self.poison_views = build_poison_views(cfg, self.datamanager)
         except StealthNSError as err:
@@ -204,18 +228,32 @@ class StealthPipeline(VanillaPipeline):
 
     # ------------------------------------------------------------------ injection
     @torch.no_grad()
-    def render_depths(self) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
-        """Rendered z-depth [H, W] and opacity [H, W] of the current model at every poisoned view."""
+    def render_depths(self, indices: list[int]) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+        """Rendered z-depth [H, W] and opacity [H, W] of the current model at training views."""
         cameras = self.datamanager.train_dataset.cameras
         was_training = self.model.training
         self.model.eval()
         depths, alphas = [], []
-        for v in self.poison_views:
-            out = self.model.get_outputs(cameras[v.index : v.index + 1].to(self.device))
+        for index in indices:
+            out = self.model.get_outputs(cameras[index : index + 1].to(self.device))
             depths.append(out["depth"][..., 0].float().cpu())
             alphas.append(out["accumulation"][..., 0].float().cpu())
         self.model.train(was_training)
         return depths, alphas
+
+    def innocent_cameras(self) -> CameraDepths:
+        """The training views that are not poisoned, with the current model's depth and opacity."""
+        poisoned = {v.index for v in self.poison_views}
+        cameras = self.datamanager.train_dataset.cameras
+        indices = [i for i in range(len(cameras)) if i not in poisoned]
+        depths, alphas = self.render_depths(indices)
+        chosen = cameras[torch.tensor(indices, dtype=torch.long)]
+        return CameraDepths(
+            viewmats=viewmat_from_c2w(chosen.camera_to_worlds.float()).cpu(),
+            Ks=chosen.get_intrinsics_matrices().float().cpu(),
+            depths=depths,
+            alphas=alphas,
+        )
 
     @torch.no_grad()
     def inject_poison(self, step: int) -> PoisonPlacement:
@@ -223,15 +261,16 @@ class StealthPipeline(VanillaPipeline):
         t0 = time.perf_counter()
         cfg = self.config.attack
         model = self.model
-        depths, alphas = self.render_depths()
+        depths, alphas = self.render_depths([v.index for v in self.poison_views])
+        innocent = self.innocent_cameras() if cfg.placement == "view-aware" else None
         means = model.means.detach().cpu().numpy()
         opacities = torch.sigmoid(model.opacities.detach()).squeeze(-1).cpu().numpy()
-        placement = place_poison(means, opacities, self.poison_views, depths, alphas, cfg)
+        placement = place_poison(means, opacities, self.poison_views, depths, alphas, cfg, innocent)
         n_new = placement.means.shape[0]
         if n_new == 0:
             fail(
                 f"t_max < t_min for every illusion pixel at step {step}: the rendered surface is nearer than "
-                f"t_min={cfg.t_min}; lower --pipeline.attack.t-min"
+                f"t_min {placement.t_min}; lower --pipeline.attack.t-min-fraction or --pipeline.attack.t-min"
             )
         device = model.means.device
         dim_sh = num_sh_bases(model.config.sh_degree)
@@ -257,6 +296,8 @@ class StealthPipeline(VanillaPipeline):
                 "n_poison_gaussians": n_new,
                 "poison_per_view": placement.per_view,
                 "invalid_rays_per_view": placement.invalid_rays,
+                "t_min_per_view": placement.t_min,
+                "innocent_views_seeing_poison": placement.seen_by,
                 "density_grid": {
                     "shape": list(placement.grid.shape),
                     "voxel_size": placement.grid.voxel_size,

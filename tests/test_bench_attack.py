@@ -7,8 +7,10 @@ trains a real tiny run through :mod:`stealth_ns.evaluation.runs`.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -19,7 +21,7 @@ from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation import experiments, runs
 from stealth_ns.evaluation.experiments import make_plan, render_markdown, run_bench, table_data
 from stealth_ns.evaluation.runs import TrainSpec, is_finished, run_status, train
-from stealth_ns.method_configs.attack_experiments import RUNS, TABLES, get_table
+from stealth_ns.method_configs.attack_experiments import DEFAULT_SCENES, RUNS, TABLES, get_table
 
 TINY = {"resolution": "64x48", "views": 16}
 TABLE6_ORDER = ["orbit/clean", "orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"]
@@ -112,24 +114,36 @@ def test_dry_run_lists_the_runs_and_writes_nothing(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_all_tables_share_runs(tmp_path):
-    plan = make_plan(tmp_path, iterations=30)  # forward scene absent: KDE views are placeholders
+def test_all_tables_share_runs(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # no ../shared/data/fox here: the default scenes skip it
+    plan = make_plan(tmp_path, iterations=30)  # scenes absent: KDE views are placeholders
+    assert plan.scenes == ("orbit", "forward", "facing")
+    assert plan.skipped_scenes == [
+        "skipping fox: ../shared/data/fox not found (a dataset folder of the default --scenes; "
+        "give --scenes fox=PATH to use it from elsewhere)"
+    ]
     keys = [p.key for p in plan.runs]
-    assert len(keys) == len(set(keys)) == 21 == len(RUNS)
-    assert keys[0] == "orbit/clean" and keys[17] == "forward/clean"
+    orbit_runs = [r for r in RUNS if r.scene == "orbit"]
+    assert len(keys) == len(set(keys)) == 25 == len(orbit_runs) + 2 * 4
+    assert keys[0] == "orbit/clean" and keys[17] == "forward/clean" and keys[21] == "facing/clean"
     full = plan.get("orbit/full")
     assert full.tables == (1, 4, 5, 6)
-    assert plan.get("forward/median").tables == (1, 2)
-    assert len({p.spec.run_dir for p in plan.runs}) == 21
+    assert plan.get("forward/median").tables == (1, 2) == plan.get("facing/median").tables
+    assert plan.get("facing/easy").tables == (2,)
+    assert len({p.spec.run_dir for p in plan.runs}) == 25
     # one run per distinct setting: no two presets of a scene train the same thing
     settings = {(r.scene, r.args, r.view) for r in RUNS}
-    assert len(settings) == len(RUNS)
+    assert len(settings) == len(RUNS) == 29  # orbit 17, forward / facing / fox 4 each
     easy = plan.get("forward/easy")
     assert "<EASY view of the KDE protocol>" in easy.spec.extra
     assert len(make_plan(tmp_path, scenes=["orbit"], iterations=30).runs) == 17
-    assert [p.key for p in make_plan(tmp_path, tables=["2"], iterations=30).runs] == [
+    assert [p.key for p in make_plan(tmp_path, tables=["2"], scenes=["forward"], iterations=30).runs] == [
         "forward/clean", "forward/easy", "forward/median", "forward/hard",
     ]  # fmt: skip
+    # Table 1 and 2 columns: orbit, forward, facing, fox (Table 1: fox's Median view, like forward)
+    assert [g.label.split()[0] for g in get_table(1).groups] == ["orbit", "forward", "facing", "fox"]
+    assert get_table(1).rows[1].runs == ("full", "median", "median", "median")
+    assert [g.label for g in get_table(2).groups][-3:] == ["fox Easy", "fox Median", "fox Hard"]
 
 
 def test_kde_views_go_on_the_command_line(tmp_path, monkeypatch):
@@ -357,6 +371,260 @@ def test_cli_dry_run_and_one_line_errors(tmp_path):
     assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0
     assert "unknown table '9'" in proc.stderr
     assert "bench attack" in run_cli("stealth-ns", "--help").stdout
+
+
+# ------------------------------------------------------------------------------ dataset folders
+@pytest.fixture(scope="module")
+def tiny_forward(tmp_path_factory) -> Path:
+    """A tiny generated forward scene (with its seed points)."""
+    from stealth_ns.scenes import make_scene
+
+    out = tmp_path_factory.mktemp("folder") / "forward_tiny"
+    make_scene(preset="forward", output=out, resolution="64x48", views=16, seed=0)
+    return out
+
+
+def _snapshot(folder: Path) -> dict[str, str]:
+    return {
+        str(f.relative_to(folder)): hashlib.sha256(f.read_bytes()).hexdigest()
+        for f in sorted(folder.rglob("*"))
+        if f.is_file()
+    }
+
+
+@pytest.fixture
+def folder_scene(tiny_forward, tmp_path):
+    """A copy of the tiny scene as a user's dataset without seed points (no ply_file_path), read-only;
+    and its seed points, kept aside for the fake make_seed_points."""
+    folder = tmp_path / "data" / "mine"
+    shutil.copytree(tiny_forward, folder)
+    meta = json.loads((folder / "transforms.json").read_text())
+    del meta["ply_file_path"]
+    (folder / "transforms.json").write_text(json.dumps(meta, indent=2))
+    ply = tmp_path / "stash.ply"
+    shutil.move(folder / "sparse_pc.ply", ply)
+    (folder / "scene.json").unlink()  # a user's folder, not a generated scene
+    for f in [folder, *folder.rglob("*")]:
+        f.chmod(0o555 if f.is_dir() else 0o444)
+    yield SimpleNamespace(path=folder, ply=ply, snapshot=_snapshot(folder))
+    for f in [folder, *folder.rglob("*")]:
+        f.chmod(0o755 if f.is_dir() else 0o644)
+
+
+class FakeSeedPoints:
+    """Stands in for stealth_ns.seed_points.make_seed_points: a seeded copy whose images are the
+    original ones (absolute paths), with the stashed point cloud."""
+
+    def __init__(self, ply: Path) -> None:
+        self.ply = ply
+        self.calls: list[tuple[Path, Path]] = []
+
+    def __call__(self, data, output=None, overwrite=False, max_points=None, seed=0):
+        data, output = Path(data), Path(output)
+        self.calls.append((data, output))
+        assert overwrite and output != data
+        meta = json.loads((data / "transforms.json").read_text())
+        for frame in meta["frames"]:
+            frame["file_path"] = str(data / frame["file_path"])
+            frame.pop("depth_file_path", None)
+        for split in ("train", "val", "test"):
+            if f"{split}_filenames" in meta:
+                meta[f"{split}_filenames"] = [str(data / f) for f in meta[f"{split}_filenames"]]
+        meta["ply_file_path"] = "sparse_pc.ply"
+        output.mkdir(parents=True, exist_ok=True)
+        shutil.copy(self.ply, output / "sparse_pc.ply")
+        (output / "transforms.json").write_text(json.dumps(meta))
+        return SimpleNamespace(dataset=output, ply=output / "sparse_pc.ply", n_points=1234, seconds=0.5)
+
+
+@pytest.fixture
+def fake_seed_points(folder_scene, monkeypatch):
+    from stealth_ns import seed_points
+
+    fake = FakeSeedPoints(folder_scene.ply)
+    monkeypatch.setattr(seed_points, "make_seed_points", fake)
+    return fake
+
+
+def test_folder_scene_dry_run_plans_its_seed_points(folder_scene, fake_seed_points, tmp_path, capsys):
+    out = tmp_path / "out"
+    spec = f"mine={folder_scene.path}"
+    plan = run_bench(out, tables=["1", "2"], scenes=["orbit", spec], iterations=30, dry_run=True)
+    assert plan.scenes == ("orbit", "mine")
+    assert [p.key for p in plan.runs] == [
+        "orbit/clean", "orbit/full", "mine/clean", "mine/median", "mine/easy", "mine/hard",
+    ]  # fmt: skip
+    text = capsys.readouterr().out
+    assert f"scene:   mine -> {folder_scene.path}  (nerfstudio-data, no seed points; used in place" in text
+    assert f"seed points: triangulated into {out / 'scenes' / 'mine'}  (to be made first)" in text
+    median = next(
+        line for line in text.splitlines() if "--experiment-name mine-seed0-30it --timestamp median" in line
+    )
+    assert median.endswith(f"nerfstudio-data --data {out / 'scenes' / 'mine'}")
+    assert "--pipeline.attack.views '<MEDIAN view of the KDE protocol>'" in median
+    # Tables 1 and 2 get columns for the folder, like fox's
+    t1, t2 = plan.tables
+    assert [g.scene for g in t1.groups][-1] == "mine" and t1.rows[1].runs[-1] == "median"
+    assert [g.label for g in t2.groups][-3:] == ["mine Easy", "mine Median", "mine Hard"]
+    assert fake_seed_points.calls == [] and not out.exists()
+    assert _snapshot(folder_scene.path) == folder_scene.snapshot
+
+
+def test_folder_scene_runs_on_its_seeded_copy(folder_scene, fake_seed_points, fakes, tmp_path, capsys):
+    """Seed points made once into OUTPUT/scenes/NAME (the folder untouched), KDE views ranked on the
+    seeded copy, runs trained on it, the source recorded; the second invocation reuses all of it."""
+    out = tmp_path / "out"
+    spec = f"mine={folder_scene.path}"
+    results = run_bench(out, tables=["1", "2"], scenes=[spec], iterations=30)
+    seeded = out / "scenes" / "mine"
+    assert fake_seed_points.calls == [(folder_scene.path, seeded)]
+    assert _snapshot(folder_scene.path) == folder_scene.snapshot  # the user's data is never written
+    marker = json.loads((out / "scenes" / f"mine{experiments.SEED_POINTS_MARKER}").read_text())
+    assert marker["source"] == str(folder_scene.path) and marker["n_points"] == 1234
+    assert fakes.training.trained == ["clean", "median", "easy", "hard"]
+    scene = results["scenes"]["mine"]
+    sha = hashlib.sha256((folder_scene.path / "transforms.json").read_bytes()).hexdigest()
+    assert scene["source"] == "folder" and scene["path"] == str(folder_scene.path)
+    assert scene["content_sha256"] == sha and scene["format"] == "nerfstudio-data"
+    assert scene["seed_points"] == "triangulated" and scene["seed_points_made"]["n_points"] == 1234
+    assert scene["dataset"] == str(seeded) and scene["views"] == 16
+    views = scene["kde_views"]  # the real KDE protocol on the seeded copy
+    assert set(views) == {"easy", "median", "hard"} and all(v.startswith("frame_") for v in views.values())
+    for level in ("easy", "median", "hard"):
+        cmd = results["runs"][f"mine/{level}"]["command"]
+        assert _arg(cmd, "--pipeline.attack.views") == views[level]
+        assert cmd[-3:] == ["nerfstudio-data", "--data", str(seeded)]
+    env = results["environment"]
+    assert {"torch", "nerfstudio", "gsplat", "numpy", "pycolmap"} <= set(env)
+    md = (out / "tables.md").read_text()
+    assert "mine (dataset folder) V-illusory PSNR↑" in md and "mine Hard V-illusory PSNR↑" in md
+
+    capsys.readouterr()
+    fakes.training.trained.clear()
+    again = run_bench(out, tables=["1", "2"], scenes=[spec], iterations=30)
+    assert len(fake_seed_points.calls) == 1 and fakes.training.trained == []  # all reused
+    assert "(done: 1234 points, reused" in capsys.readouterr().out
+    assert again["scenes"]["mine"]["kde_views"] == views
+    # the record gone: the seed points are made again (and the runs, same data, still reused)
+    (out / "scenes" / f"mine{experiments.SEED_POINTS_MARKER}").unlink()
+    run_bench(out, tables=["1"], scenes=[spec], iterations=30)
+    assert len(fake_seed_points.calls) == 2 and fakes.training.trained == []
+
+
+def test_failed_seed_points_fail_only_that_scenes_runs(folder_scene, fakes, tmp_path, monkeypatch, capsys):
+    from stealth_ns import seed_points
+
+    def broken(data, output=None, overwrite=False, max_points=None, seed=0):
+        raise StealthNSError("triangulation gave no points")
+
+    monkeypatch.setattr(seed_points, "make_seed_points", broken)
+    out = tmp_path / "out"
+    with pytest.raises(StealthNSError, match=r"2 of 4 runs failed \(mine/clean, mine/median\)"):
+        run_bench(out, tables=["1"], scenes=["orbit", f"mine={folder_scene.path}"], iterations=30,
+                  scene_options=TINY)  # fmt: skip
+    assert fakes.training.trained == ["clean", "full"]  # orbit's runs went on
+    captured = capsys.readouterr()
+    assert "FAILED mine: making its seed points failed: triangulation gave no points" in captured.err
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["runs"]["mine/median"]["status"] == "failed"
+    assert "triangulation gave no points" in saved["scenes"]["mine"]["error"]
+
+
+def test_default_scenes_skip_a_missing_fox(tmp_path, monkeypatch, capsys):
+    from stealth_ns.cli import BenchAttack, main
+
+    assert BenchAttack.scenes == DEFAULT_SCENES == ("orbit", "forward", "facing", "fox=../shared/data/fox")
+    monkeypatch.chdir(tmp_path)
+    main([*"bench attack --dry-run --tables 1 --iterations 30 --output".split(), str(tmp_path / "o")])
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == (
+        "skipping fox: ../shared/data/fox not found (a dataset folder of the default --scenes; "
+        "give --scenes fox=PATH to use it from elsewhere)"
+    )
+    assert "6 runs: 6 to train" in out and "fox/" not in out
+    # named explicitly, a missing folder is an error
+    for scenes in (["fox"], ["orbit", "fox=../shared/data/fox"]):
+        with pytest.raises(StealthNSError, match=r"^scene fox: \.\./shared/data/fox not found$"):
+            make_plan(tmp_path, tables=["1"], scenes=scenes, iterations=30)
+    # "all" is the default list: the missing folder is skipped
+    assert make_plan(tmp_path, tables=["1"], scenes=["all"], iterations=30).scenes == (
+        "orbit", "forward", "facing",
+    )  # fmt: skip
+
+
+def test_colmap_and_blender_folders(tmp_path, monkeypatch):
+    from stealth_ns.evaluation import difficulty
+
+    colmap = tmp_path / "garden"
+    (colmap / "sparse" / "0").mkdir(parents=True)
+    (colmap / "images").mkdir()
+    for name in ("cameras.txt", "images.txt", "points3D.txt"):
+        (colmap / "sparse" / "0" / name).write_text(f"# {name}\n")
+    blender = tmp_path / "lego"
+    blender.mkdir()
+    (blender / "transforms_train.json").write_text('{"camera_angle_x": 0.69, "frames": []}')
+    ranking = SimpleNamespace(easy="a.png", median="b.png", hard="c.png")
+    ranked: list[Path] = []
+    monkeypatch.setattr(difficulty, "rank_scene_views", lambda data: ranked.append(Path(data)) or ranking)
+
+    plan = make_plan(
+        tmp_path / "out", tables=["1"], scenes=[f"garden={colmap}", f"lego={blender}"], iterations=30
+    )
+    assert plan.scenes == ("garden", "lego") and ranked == [colmap]  # lego has no seed points yet
+    cmd = plan.get("garden/median").spec.command()
+    assert cmd[-7:] == [
+        "colmap",
+        "--data",
+        str(colmap),
+        "--colmap-path",
+        "sparse/0",
+        "--downscale-factor",
+        "1",
+    ]
+    assert _arg(cmd, "--pipeline.attack.views") == "b.png"
+    assert plan.sources["garden"].seed_points == "colmap" and plan.scene_ready["garden"]
+    lego = plan.get("lego/clean").spec.command()
+    assert _arg(lego, "--pipeline.model.background-color") == "white"
+    assert lego[-3:] == ["nerfstudio-data", "--data", str(tmp_path / "out" / "scenes" / "lego")]
+    assert plan.sources["lego"].triangulated and plan.sources["lego"].format == "blender"
+    # run identities: a folder's name and content hash (other data under the same name is not reused)
+    assert plan.get("garden/clean").spec.identity()["scene"] == f"garden:{plan.sources['garden'].sha256[:16]}"
+    assert plan.get("garden/clean").spec.identity()["dataparser"][0] == "colmap"
+
+
+@pytest.mark.parametrize(
+    ("scenes", "message"),
+    [
+        (["mine={missing}"], r"^scene mine: .*nowhere not found$"),
+        (["mine={empty}"], r"^scene mine: unknown dataset format in .*: no transforms.json"),
+        (["mine={file}"], r"^scene mine: .* is not a folder"),
+        (["mine={good}", "mine={good}"], r"^scene 'mine' is given twice in --scenes$"),
+        (["fox", "fox={good}"], r"^scene 'fox' is given twice"),
+        (["orbit={good}"], r"^scene name 'orbit' .* is taken by the generated preset orbit"),
+        (["forward-seed0={good}"], r"taken by the generated preset forward"),
+        (["mine="], r"^no folder given for scene 'mine'"),
+        (["my/scene={good}"], r"^bad scene name 'my/scene'"),
+        (["all={good}"], r"^bad scene name 'all'"),
+        (["mine={noframes}"], r"is not a nerfstudio transforms.json"),
+        (["mine={badply}"], r"the ply_file_path 'points.ply' of .* does not exist"),
+        (["mine={colmap_noimages}"], r"has a COLMAP model in sparse/0 but no images/ folder"),
+    ],
+)
+def test_bad_scene_specs_are_one_line_errors(tmp_path, scenes, message):
+    dirs = {name: tmp_path / name for name in ("empty", "good", "noframes", "badply", "colmap_noimages")}
+    for d in dirs.values():
+        d.mkdir()
+    (dirs["good"] / "transforms.json").write_text('{"frames": [{"file_path": "images/a.png"}]}')
+    (dirs["noframes"] / "transforms.json").write_text('{"frames": []}')
+    (dirs["badply"] / "transforms.json").write_text('{"frames": [{}], "ply_file_path": "points.ply"}')
+    (dirs["colmap_noimages"] / "sparse" / "0").mkdir(parents=True)
+    (dirs["colmap_noimages"] / "sparse" / "0" / "cameras.bin").write_bytes(b"")
+    (tmp_path / "file").write_text("")
+    paths = {**dirs, "missing": tmp_path / "nowhere", "file": tmp_path / "file"}
+    with pytest.raises(StealthNSError, match=message) as err:
+        make_plan(tmp_path / "out", tables=["1"], scenes=[s.format(**paths) for s in scenes], iterations=30)
+    assert "\n" not in str(err.value)
+    assert not (tmp_path / "out").exists()
 
 
 # ------------------------------------------------------------------------------ runs.py

@@ -249,7 +249,7 @@ def test_forward_view_coverage_varies(forward_scene):
     assert counts.std() > 4
 
 
-@pytest.mark.parametrize("scene_name", ["orbit_scene", "forward_scene"])
+@pytest.mark.parametrize("scene_name", ["orbit_scene", "forward_scene", "facing_scene"])
 def test_images_are_richly_textured(scene_name, request):
     _, images, _, _, _ = _load(request.getfixturevalue(scene_name))
     v, h, w, _ = images.shape
@@ -363,3 +363,249 @@ def test_console_script_reports_one_line_error(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("stealth-ns: error: views must be")
     assert "Traceback" not in proc.stderr
+
+
+# --------------------------------------------------------------------------------------------
+# facing preset (LLFF like, nerfstudio-data)
+
+
+@pytest.fixture(scope="module")
+def facing_scene(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("facing") / "scene"
+    make_scene("facing", out, resolution=RES, seed=2)  # default 24 views
+    return out
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+def test_facing_layout_split_and_cameras(facing_scene):
+    assert sorted(p.name for p in facing_scene.iterdir()) == [
+        "depths",
+        "images",
+        "scene.json",
+        "sparse_pc.ply",
+        "transforms.json",
+    ]
+    meta, images, depths, xyz, _ = _load(facing_scene)
+    info = json.loads((facing_scene / "scene.json").read_text())
+    assert info["preset"] == "facing" and info["views"] == 24 and info["format"] == "nerfstudio-data"
+    assert (info["n_train"], info["n_test"]) == (21, 3)
+    assert meta["test_filenames"] == [f"images/frame_{i:05d}.png" for i in (0, 8, 16)]
+    assert len(meta["train_filenames"]) == 21 and images.shape == (24, 48, 64, 3)
+    c2w = np.stack([np.asarray(f["transform_matrix"]) for f in meta["frames"]])
+    axes = -c2w[:, :3, 2]
+    # all optical axes point the same way (roughly -Z), within a few degrees of each other
+    assert max(_angle_deg(a, b) for a in axes for b in axes) < 15
+    assert all(_angle_deg(a, np.array([0.0, 0.0, -1.0])) < 15 for a in axes)
+    # cameras on a small plane-like patch: baseline much smaller than the scene depth
+    pos = c2w[:, :3, 3]
+    span = pos.max(axis=0) - pos.min(axis=0)
+    assert span[0] <= 0.5 + 1e-9 and span[1] <= 0.35 + 1e-9 and span[2] < 0.1
+    assert span[0] > 0.25 and span[1] > 0.15
+    baseline = max(np.linalg.norm(a - b) for a in pos for b in pos)
+    assert baseline < 0.2 * np.median(depths[depths > 0])
+    # a cluttered scene a few units deep in front of a back wall at ~7, (almost) no sky
+    assert (depths > 0).mean() > 0.98
+    assert 2.0 < np.percentile(depths[depths > 0], 5) and np.percentile(depths[depths > 0], 95) < 8.0
+    assert np.median(depths[depths > 0]) < 7.0
+    assert len(np.unique(np.round(depths[0], 1))) > 30
+    assert info["n_points"] == len(xyz) > 5000 and info["n_outliers"] == round(0.02 * len(xyz))
+
+
+def test_facing_seed_points_have_sfm_outliers(facing_scene):
+    meta, images, depths, xyz, rgb = _load(facing_scene)
+    best = np.full(len(xyz), np.inf)  # smallest relative depth error over the training views
+    colour = np.full(len(xyz), np.inf)
+    for i in _train_indices(meta):
+        col, row, z, ok = _project(meta, meta["frames"][i]["transform_matrix"], xyz)
+        rel = np.where(ok, np.abs(z - depths[i][row, col]) / np.where(ok, z, 1.0), np.inf)
+        err = np.abs(images[i][row, col] - rgb).mean(axis=1)
+        colour = np.where(rel < 0.02, np.minimum(colour, err), colour)  # over the views seeing it
+        best = np.minimum(best, rel)
+    inlier = best < 0.02
+    # ~98% are surface samples (depth-proportional noise) matching the images' colours ...
+    assert 0.96 < inlier.mean() < 0.995
+    assert np.median(best) < 0.005 and np.median(colour[inlier]) < 0.02
+    # ... and ~2% are off the surfaces, as mis-triangulated SfM points are
+    assert 0.01 < (best > 0.1).mean() < 0.03
+
+
+@pytest.mark.parametrize("split,count", [("train", 21), ("val", 3), ("test", 3)])
+def test_nerfstudio_dataparser_loads_facing(facing_scene, split, count):
+    from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
+
+    outputs = (
+        NerfstudioDataParserConfig(data=facing_scene, load_3D_points=True)
+        .setup()
+        .get_dataparser_outputs(split=split)
+    )
+    assert len(outputs.image_filenames) == count and len(outputs.cameras) == count
+    assert outputs.metadata["points3D_xyz"].shape[0] == len(read_ply(facing_scene / "sparse_pc.ply")[0])
+    assert all(p.exists() for p in outputs.image_filenames)
+
+
+# --------------------------------------------------------------------------------------------
+# object preset (NeRF-synthetic like, Blender format)
+
+
+@pytest.fixture(scope="module")
+def object_scene(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("object") / "scene"
+    make_scene("object", out, resolution="48x48", views=24, seed=1)  # 16 train / 4 val / 4 test
+    return out
+
+
+def _blender_split(scene: Path, split: str):
+    """transforms, RGBA images (V, H, W, 4) float [0, 1], depths (V, H, W), c2w (V, 4, 4)."""
+    meta = json.loads((scene / f"transforms_{split}.json").read_text())
+    images = np.stack([np.asarray(Image.open(scene / (f["file_path"][2:] + ".png"))) for f in meta["frames"]])
+    depths = np.stack([np.load(scene / f["depth_file_path"]) for f in meta["frames"]])
+    c2w = np.stack([np.asarray(f["transform_matrix"], dtype=np.float64) for f in meta["frames"]])
+    return meta, images / 255.0, depths, c2w
+
+
+def _pixel_rays(width: int, height: int, angle_x: float, c2w: np.ndarray) -> np.ndarray:
+    """Unnormalised world directions (H, W, 3) of the pixel centres, camera-space z = -1."""
+    f = 0.5 * width / np.tan(0.5 * angle_x)
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    cam = np.stack([(u - width / 2) / f, -(v - height / 2) / f, -np.ones_like(u)], axis=-1)
+    return cam @ c2w[:3, :3].T
+
+
+def test_object_layout_and_cameras(object_scene):
+    assert sorted(p.name for p in object_scene.iterdir()) == [
+        "depths",
+        "scene.json",
+        "test",
+        "train",
+        "transforms_test.json",
+        "transforms_train.json",
+        "transforms_val.json",
+        "val",
+    ]
+    info = json.loads((object_scene / "scene.json").read_text())
+    assert info["preset"] == "object" and info["format"] == "blender" and info["n_points"] == 0
+    assert (info["n_train"], info["n_val"], info["n_test"]) == (16, 4, 4)
+    assert info["resolution"] == [48, 48] and info["world_up"] == [0.0, 0.0, 1.0]
+    for split, n in (("train", 16), ("val", 4), ("test", 4)):
+        meta, images, depths, c2w = _blender_split(object_scene, split)
+        assert meta["camera_angle_x"] == pytest.approx(0.6911112, abs=1e-6)
+        assert [f["file_path"] for f in meta["frames"]] == [f"./{split}/r_{k}" for k in range(n)]
+        assert sorted(p.name for p in (object_scene / split).iterdir()) == sorted(
+            f"r_{k}.png" for k in range(n)
+        )
+        img = Image.open(object_scene / split / "r_0.png")
+        assert (img.mode, img.size) == ("RGBA", (48, 48))
+        assert depths.dtype == np.float32 and depths.shape == (n, 48, 48)
+        # cameras at radius 4 looking at the origin, on the upper hemisphere (Blender: +Z up)
+        pos = c2w[:, :3, 3]
+        np.testing.assert_allclose(np.linalg.norm(pos, axis=1), 4.0, atol=1e-6)
+        np.testing.assert_allclose(-c2w[:, :3, 2], -pos / 4.0, atol=1e-6)
+        gram = np.einsum("vji,vjk->vik", c2w[:, :3, :3], c2w[:, :3, :3])
+        np.testing.assert_allclose(gram, np.broadcast_to(np.eye(3), gram.shape), atol=1e-6)
+        assert (pos[:, 2] > 0.5).all() and (c2w[:, 2, 1] > 0).all()  # image up points up
+        if split == "test":  # a ring at one elevation
+            np.testing.assert_allclose(pos[:, 2], 4.0 * np.sin(np.deg2rad(30)), atol=1e-6)
+    # train views cover the hemisphere: all azimuth quadrants, low and high elevations
+    pos = _blender_split(object_scene, "train")[3][:, :3, 3]
+    assert len(set((np.arctan2(pos[:, 1], pos[:, 0]) // (np.pi / 2)).astype(int))) == 4
+    assert pos[:, 2].min() < 1.5 and pos[:, 2].max() > 3.0
+
+
+def test_object_alpha_depth_and_extent(object_scene):
+    for split in ("train", "val", "test"):
+        meta, images, depths, c2w = _blender_split(object_scene, split)
+        alpha, rgb = images[..., 3], images[..., :3]
+        for img_alpha, img_rgb, depth, m in zip(alpha, rgb, depths, c2w, strict=True):
+            dirs = _pixel_rays(48, 48, meta["camera_angle_x"], m)
+            # background: rays that miss the unit sphere (the object's bound) are fully transparent
+            o = m[:3, 3]
+            unit = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
+            miss = np.linalg.norm(np.cross(unit, -o), axis=-1) > 1.0 + 0.05
+            assert miss.mean() > 0.2
+            assert (img_alpha[miss] == 0).all() and (depth[miss] == 0).all()
+            assert (img_rgb[img_alpha == 0] == 0).all()  # transparent black, as NeRF-synthetic
+            # the object: opaque where the pixel-centre ray hits it, in the unit sphere
+            hit = depth > 0
+            assert 0.05 < hit.mean() < 0.8
+            assert (img_alpha[hit] > 0).mean() > 0.99 and (img_alpha[hit] == 1).mean() > 0.8
+            points = o + dirs[hit] * depth[hit][:, None]
+            assert np.linalg.norm(points, axis=1).max() < 1.0 + 1e-3
+            # no alpha far from any hit (the border is transparent)
+            assert (img_alpha[0] == 0).all() and (img_alpha[-1] == 0).all()
+    # the object just fits the unit sphere: some surface point comes close to it
+    _, _, depths, c2w = _blender_split(object_scene, "train")
+    far = max(
+        np.linalg.norm(m[:3, 3] + _pixel_rays(48, 48, 0.6911112, m)[d > 0] * d[d > 0][:, None], axis=1).max()
+        for d, m in zip(depths, c2w, strict=True)
+    )
+    assert far > 0.8
+
+
+@pytest.mark.parametrize("split,count", [("train", 16), ("val", 4), ("test", 4)])
+def test_blender_dataparser_loads_object(object_scene, split, count):
+    from nerfstudio.data.dataparsers.blender_dataparser import BlenderDataParserConfig
+    from nerfstudio.data.datasets.base_dataset import InputDataset
+
+    outputs = BlenderDataParserConfig(data=object_scene).setup().get_dataparser_outputs(split=split)
+    meta, images, _, c2w = _blender_split(object_scene, split)
+    assert [p.relative_to(object_scene).as_posix() for p in outputs.image_filenames] == [
+        f"{split}/r_{k}.png" for k in range(count)
+    ]
+    cams = outputs.cameras
+    assert cams.width.flatten().tolist() == [48] * count and cams.height.flatten().tolist() == [48] * count
+    assert cams.fx.flatten().tolist() == pytest.approx([24 / np.tan(0.6911112070083618 / 2)] * count)
+    np.testing.assert_allclose(cams.camera_to_worlds.numpy(), c2w[:, :3], atol=1e-6)
+    # nerfstudio composites the RGBA images on its alpha colour (white by default)
+    image = InputDataset(outputs).get_image_float32(0).numpy()
+    assert image.shape == (48, 48, 3)
+    np.testing.assert_allclose(image[images[0, ..., 3] == 0], 1.0)
+    hit = images[0, ..., 3] == 1
+    np.testing.assert_allclose(image[hit], images[0, ..., :3][hit], atol=1 / 255)
+
+
+def test_object_summary_default_resolution_and_overwrite(tmp_path):
+    out = tmp_path / "obj"
+    summary = make_scene("object", out, views=8, seed=4)  # default resolution: square 128x128
+    assert Image.open(out / "train" / "r_0.png").size == (128, 128)
+    assert (summary.n_train, summary.n_val, summary.n_test, summary.n_points) == (6, 1, 1, 0)
+    text = str(summary)
+    assert "6 train / 1 val / 1 test" in text and "128x128" in text and "no seed points" in text
+    assert f"ns-train stealth-splat-lite --vis tensorboard blender-data --data {out}" in text
+    # --overwrite with another preset removes the Blender entries, keeps unrelated files
+    (out / "notes.txt").write_text("keep me")
+    make_scene("facing", out, resolution="16x12", views=8, overwrite=True)
+    assert sorted(p.name for p in out.iterdir()) == [
+        "depths",
+        "images",
+        "notes.txt",
+        "scene.json",
+        "sparse_pc.ply",
+        "transforms.json",
+    ]
+    assert sorted(p.name for p in (out / "depths").iterdir()) == [f"frame_{i:05d}.npy" for i in range(8)]
+
+
+def test_cli_make_scene_new_presets(tmp_path):
+    from stealth_ns.cli import main
+
+    main(["make-scene", "--preset", "object", "--output", str(tmp_path / "o"), "--views", "8"])
+    assert Image.open(tmp_path / "o" / "test" / "r_0.png").size == (128, 128)
+    main(["make-scene", "--preset", "facing", "--output", str(tmp_path / "f"), "--views", "8"])
+    assert Image.open(tmp_path / "f" / "images" / "frame_00000.png").size == (128, 96)
+
+
+@pytest.mark.parametrize("preset", ["facing", "object"])
+def test_new_presets_are_deterministic(tmp_path, preset):
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    for out, seed in ((a, 7), (b, 7), (c, 8)):
+        make_scene(preset, out, resolution="32x24", views=8, seed=seed)
+    files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    assert len(files) == (8 + 8 + 3 if preset == "facing" else 8 + 8 + 3 + 1)
+    for rel in files:
+        assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
+    images = [rel for rel in files if rel.suffix == ".png"]
+    assert sum((a / rel).read_bytes() != (c / rel).read_bytes() for rel in images) == len(images)

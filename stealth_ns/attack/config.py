@@ -3,11 +3,11 @@
 Defaults come from the paper (StealthAttack, ICCV 2025, §3-4) and, where the paper is
 silent, from the authors' code (see ``docs/attack.md``).
 
-Units: nerfstudio's dataparsers recentre the cameras and scale them into [-1, 1]³
-(``auto_scale_poses``), so every distance here (``t_min``, ``voxel_size``) is in those
-rescaled scene units. For an inward-facing capture the cameras then sit about 1 unit from
-the scene centre; the paper's ``t_min = 0.3`` was in COLMAP units of Mip-NeRF 360 scenes,
-where cameras sit about 4 units away, hence our default of 0.075.
+Units: the defaults are scale-free -- ``t_min_fraction`` is a fraction of the poisoned view's
+scene depth, ``grid_resolution`` / ``bandwidth`` count voxels, ``poison_scale`` counts pixel
+footprints -- so they transfer between captures. The absolute overrides (``t_min``,
+``voxel_size``) are in nerfstudio's rescaled scene units (cameras recentred and scaled into
+[-1, 1]³ by ``auto_scale_poses``).
 """
 
 from __future__ import annotations
@@ -61,15 +61,28 @@ class AttackConfig(PrintableConfig):
     """KDE bandwidth h in voxels (paper's default 7.5; its ablation varies 0.1..10)."""
     outlier_removal: bool = True
     """Statistical outlier removal (20 neighbours, 2 std) before the AABB, as the authors did."""
-    t_min: float = 0.075
-    """Nearest distance along a ray (nerfstudio's rescaled scene units) where a poison Gaussian
-    may go. The paper's 0.3 is in Mip-NeRF 360's COLMAP units, where cameras sit ~4 units from
-    the scene centre; nerfstudio rescales that distance to ~1, so 0.3 becomes ~0.075. Measured
-    on the orbit scene (injection at step 0): t_min 0.3 -> V-illusory 12.1 dB (fails), 0.07 -> 32.4 dB."""
+    placement: Literal["view-aware", "kde"] = "view-aware"
+    """Where on its illusion ray a poison Gaussian goes. ``kde``: the paper's arg-min of the KDE
+    density (eq. 4). ``view-aware``: the sample seen by the fewest innocent training cameras
+    (inside their image and not behind the surface their render shows), the KDE density breaking
+    ties -- the paper's "low density = weakly constrained" made explicit. Measured in
+    ``docs/attack.md`` (placement table): the KDE arg-min fails on forward-facing captures, whose
+    every camera sees the empty space in front of the surface."""
+    visibility_margin: float = 0.05
+    """``view-aware``: a point up to this fraction of the rendered depth behind a camera's surface
+    still counts as seen by that camera."""
+    t_min_fraction: float = 0.075
+    """Nearest distance along a ray where a poison Gaussian may go, as a fraction of the poisoned
+    view's median rendered depth (scale-free: the same on any capture). 0.075 reproduces the
+    orbit-tuned absolute 0.075 (cameras ~1 rescaled unit from the scene there); the paper's t_min
+    0.3 in Mip-NeRF 360 units is the same fraction."""
+    t_min: float | None = None
+    """Absolute near distance in nerfstudio's rescaled scene units; overrides ``t_min_fraction``
+    (the paper's 0.3 is in Mip-NeRF 360's COLMAP units, ~4x ours)."""
     samples_per_ray: int = 1024
     """Samples between t_min and the rendered depth (the authors: 8192, nearest voxel)."""
     tie_break: Literal["nearest-surface", "first", "middle"] = "nearest-surface"
-    """Among equally empty samples: nearest the surface (default), nearest the camera (the
+    """Among equally good samples: nearest the surface (default), nearest the camera (the
     authors' argmin), or the middle of the first minimal run."""
 
     # --- injection ---------------------------------------------------------------------------

@@ -1,9 +1,11 @@
 """Density-guided injection of poison Gaussians (paper §3.3), on top of the pure functions.
 
 ``place_poison`` turns the current Gaussians plus the poisoned views into new Gaussians:
-opacity-weighted voxel density -> KDE -> for every illusion pixel, the least dense point on
-its ray between ``t_min`` and the rendered depth. ``append_gaussians`` then grows the
-model's parameters, their Adam state and gsplat's densification state together.
+opacity-weighted voxel density -> KDE -> for every illusion pixel, the best point on its ray
+between ``t_min`` and the rendered depth: the least dense one (``placement="kde"``, the paper)
+or the one seen by the fewest innocent training cameras, the density breaking ties
+(``placement="view-aware"``, :mod:`stealth_ns.attack.visibility`). ``append_gaussians`` then
+grows the model's parameters, their Adam state and gsplat's densification state together.
 """
 
 from __future__ import annotations
@@ -19,10 +21,10 @@ from torch import Tensor
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid, gaussian_kde_grid, voxel_density
 from stealth_ns.attack.ray_search import min_density_points, pixel_rays, zdepth_to_ray_t
+from stealth_ns.attack.visibility import SURFACE_ALPHA, CameraDepths, count_seeing_cameras
 
-# Pixels whose rendered opacity is below this see no reconstructed surface (sky, empty
+# Pixels whose rendered opacity is below SURFACE_ALPHA see no reconstructed surface (sky, empty
 # background): their ray is searched up to where it leaves the density grid instead.
-SURFACE_ALPHA = 0.5
 
 
 @dataclass
@@ -49,6 +51,10 @@ class PoisonPlacement:
     scales: Tensor  # [M] std-dev in world units
     per_view: dict[str, int] = field(default_factory=dict)  # view name -> Gaussians placed
     invalid_rays: dict[str, int] = field(default_factory=dict)  # view name -> rays with t_max < t_min
+    t_min: dict[str, float] = field(default_factory=dict)  # view name -> near bound used (scene units)
+    seen_by: dict[str, float] = field(
+        default_factory=dict
+    )  # view name -> mean innocent cameras seeing a poison
     grid: DensityGrid | None = None
     kde: DensityGrid | None = None
     timings: dict[str, float] = field(default_factory=dict)
@@ -87,6 +93,17 @@ def build_density(
     return grid, gaussian_kde_grid(grid, cfg.bandwidth)
 
 
+def near_bound(depth: Tensor, alpha: Tensor, cfg: AttackConfig, fallback: float) -> float:
+    """``t_min`` of one poisoned view in scene units: ``cfg.t_min`` if set, else
+    ``cfg.t_min_fraction`` x the median rendered z-depth of the pixels that show a surface
+    (``fallback``, e.g. the distance to the density grid's centre, when none does)."""
+    if cfg.t_min is not None:
+        return float(cfg.t_min)
+    surface = depth[(alpha >= SURFACE_ALPHA) & torch.isfinite(depth) & (depth > 0)]
+    scene_depth = float(surface.median()) if surface.numel() else fallback
+    return cfg.t_min_fraction * scene_depth
+
+
 def place_poison(
     means: np.ndarray,
     opacities: np.ndarray,
@@ -94,6 +111,7 @@ def place_poison(
     depths: list[Tensor],
     alphas: list[Tensor],
     cfg: AttackConfig,
+    innocent: CameraDepths | None = None,
 ) -> PoisonPlacement:
     """Poison Gaussians for every illusion pixel of every poisoned view.
 
@@ -102,15 +120,26 @@ def place_poison(
         views: the poisoned views.
         depths: per view, [H, W] rendered z-depth of the current model (scene units).
         alphas: per view, [H, W] rendered opacity (accumulation).
-        cfg: the attack config (KDE, t_min, samples, tie-break, poison scale).
+        cfg: the attack config (KDE, placement, t_min, samples, tie-break, poison scale).
+        innocent: the innocent training cameras with their rendered depth; required by
+            ``placement="view-aware"``.
     """
+    if cfg.placement == "view-aware" and innocent is None:
+        raise ValueError("view-aware placement needs the innocent cameras' rendered depth")
+    penalty = None
+    if cfg.placement == "view-aware" and len(innocent):
+
+        def penalty(pts: Tensor) -> Tensor:
+            return count_seeing_cameras(pts, innocent, margin=cfg.visibility_margin)
+
     t0 = time.perf_counter()
     grid, kde = build_density(means, opacities, cfg)
     timings = {"density_kde_s": time.perf_counter() - t0}
     lower = torch.as_tensor(grid.origin, dtype=torch.float32)
     upper = torch.as_tensor(grid.upper, dtype=torch.float32)
     out_means, out_colors, out_scales = [], [], []
-    per_view, invalid = {}, {}
+    per_view, invalid, near, seen = {}, {}, {}, {}
+    centre = torch.as_tensor((grid.origin + grid.upper) / 2, dtype=torch.float32)
     t1 = time.perf_counter()
     for view, depth, alpha in zip(views, depths, alphas, strict=True):
         rows, cols = torch.nonzero(view.mask, as_tuple=True)
@@ -122,8 +151,16 @@ def place_poison(
         t_surface = torch.as_tensor(zdepth_to_ray_t(depth[rows, cols].float(), cos))
         t_exit = ray_exit_distance(origins, dirs, lower, upper)
         t_max = torch.where(alpha[rows, cols] >= SURFACE_ALPHA, t_surface, t_exit)
+        t_min = near_bound(depth, alpha, cfg, fallback=float(torch.linalg.norm(centre - view.c2w[:3, 3])))
         found = min_density_points(
-            kde, origins, dirs, cfg.t_min, t_max, n_samples=cfg.samples_per_ray, tie_break=cfg.tie_break
+            kde,
+            origins,
+            dirs,
+            t_min,
+            t_max,
+            n_samples=cfg.samples_per_ray,
+            tie_break=cfg.tie_break,
+            penalty=penalty,
         )
         valid = torch.as_tensor(found.valid)
         pts = torch.as_tensor(found.points)[valid]
@@ -134,6 +171,9 @@ def place_poison(
         out_scales.append(cfg.poison_scale * zdepth / math.sqrt(view.fx * view.fy))
         per_view[view.name] = int(valid.sum())
         invalid[view.name] = int((~valid).sum())
+        near[view.name] = t_min
+        if penalty is not None and bool(valid.any()):
+            seen[view.name] = float(torch.as_tensor(found.penalty)[valid].mean())
     timings["ray_search_s"] = time.perf_counter() - t1
     return PoisonPlacement(
         means=torch.cat(out_means) if out_means else torch.zeros(0, 3),
@@ -141,6 +181,8 @@ def place_poison(
         scales=torch.cat(out_scales) if out_scales else torch.zeros(0),
         per_view=per_view,
         invalid_rays=invalid,
+        t_min=near,
+        seen_by=seen,
         grid=grid,
         kde=kde,
         timings=timings,

@@ -21,6 +21,7 @@ along the optical axis, what gsplat's ``"ED"``/``"D"`` render modes give) corres
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, Literal, NamedTuple, TypeVar
 
@@ -63,12 +64,15 @@ class RaySearchResult(Generic[ArrayT]):
         t: ``[M]`` its ray parameter (NaN for invalid rays).
         density: ``[M]`` the sampled density there, i.e. the minimum along the ray (NaN for invalid rays).
         valid: ``[M]`` bool: ``t_min <= t_max`` and all inputs of the ray finite.
+        penalty: ``[M]`` the ``penalty`` (see :func:`min_density_points`) at the chosen point, 0 without
+            one (NaN for invalid rays).
     """
 
     points: ArrayT
     t: ArrayT
     density: ArrayT
     valid: ArrayT
+    penalty: ArrayT
 
 
 def _to_torch(x, dtype=torch.float64, device=None) -> torch.Tensor:
@@ -185,6 +189,7 @@ def min_density_points(
     mode: Literal["nearest", "trilinear"] = "nearest",
     outside: float = 0.0,
     max_samples_per_chunk: int = MAX_SAMPLES_PER_CHUNK,
+    penalty: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ) -> RaySearchResult[ArrayT]:
     """Least-dense point along each ray (paper eq. 4), by dense uniform sampling.
 
@@ -205,6 +210,13 @@ def min_density_points(
     * ``"middle"``: the middle sample of the first contiguous run of candidates (the centre of the first
       low-density pocket; ``(start + end) // 2``).
 
+    ``penalty`` (optional) maps sample points ``[C, n, 3]`` (torch, the rays' dtype/device) to a
+    non-negative integer cost ``[C, n]``, e.g. the number of innocent cameras that see each point
+    (:func:`stealth_ns.attack.visibility.count_seeing_cameras`). The search then minimises
+    ``(penalty, density)`` lexicographically -- the fewest-penalty samples first, the density (a
+    normalised KDE, in [0, 1]) among them, the tie-break rule last -- by minimising
+    ``2 * penalty + density``.
+
     Chunking: rays are processed in chunks of ``max(1, max_samples_per_chunk // n_samples)`` rays so that
     at most ``max_samples_per_chunk`` sample points (``[chunk, n, 3]``) exist at a time; results do not
     depend on the chunk size.
@@ -221,6 +233,7 @@ def min_density_points(
         mode: density lookup, ``"nearest"`` or ``"trilinear"``.
         outside: density of points outside the grid.
         max_samples_per_chunk: memory bound, see above.
+        penalty: optional per-sample integer cost minimised before the density (see above).
 
     Returns:
         :class:`RaySearchResult` with ``points [M, 3]``, ``t [M]``, ``density [M]`` (NaN for invalid rays)
@@ -258,6 +271,7 @@ def min_density_points(
     points = torch.full((m, 3), float("nan"), dtype=dtype, device=device)
     t_out = torch.full((m,), float("nan"), dtype=dtype, device=device)
     f_out = torch.full((m,), float("nan"), dtype=dtype, device=device)
+    pen_out = torch.full((m,), float("nan"), dtype=dtype, device=device)
 
     vidx = torch.nonzero(valid).flatten()
     if vidx.numel():
@@ -275,13 +289,15 @@ def min_density_points(
             ts = tn_c[:, None] + (tf_c - tn_c)[:, None] * frac[None, :]  # [C, n]
             pts = o_c[:, None, :] + ts[..., None] * d_c[:, None, :]  # [C, n, 3]
             f = _sample_torch(values, origin, density.voxel_size, pts, mode, float(outside))  # [C, n]
+            pen = penalty(pts).to(dtype) if penalty is not None else torch.zeros_like(f)
             del pts
-            k = _pick_index(f, tie_break, tie_tol)
+            k = _pick_index(2.0 * pen + f, tie_break, tie_tol)
             t_best = ts.gather(1, k[:, None])[:, 0]
             t_out[sel] = t_best
             f_out[sel] = f.gather(1, k[:, None])[:, 0]
+            pen_out[sel] = pen.gather(1, k[:, None])[:, 0]
             points[sel] = o_c + t_best[:, None] * d_c
 
     if is_numpy:
-        return RaySearchResult(points.numpy(), t_out.numpy(), f_out.numpy(), valid.numpy())  # type: ignore[arg-type]
-    return RaySearchResult(points, t_out, f_out, valid)  # type: ignore[arg-type]
+        return RaySearchResult(points.numpy(), t_out.numpy(), f_out.numpy(), valid.numpy(), pen_out.numpy())  # type: ignore[arg-type]
+    return RaySearchResult(points, t_out, f_out, valid, pen_out)  # type: ignore[arg-type]

@@ -1,25 +1,33 @@
-"""``stealth-ns bench attack``: the paper's Tables 1-6 on the generated scenes.
+"""``stealth-ns bench attack``: the paper's Tables 1-6 on generated scenes and dataset folders.
 
 The presets (:mod:`stealth_ns.method_configs.attack_experiments`) say which runs each table
-shows. This module plans the runs of the chosen tables and scenes (a run shared by several
-tables is trained once), trains what is missing with a progress bar across runs (each
-``ns-train``'s output goes to ``ns-train.log`` in its run folder), reuses finished runs and
-retrains interrupted ones (see :mod:`stealth_ns.evaluation.runs`), compares every poisoned run
-with the clean run of its scene (:func:`stealth_ns.evaluation.report.compare_runs`, cached as
-``metrics.json`` in the poisoned run's folder) and writes ``OUTPUT/tables.md`` (markdown shaped
-like the paper's tables) and ``OUTPUT/results.json`` (every number, the environment, timings).
+shows. This module resolves ``--scenes`` (generated presets, and dataset folders ``NAME=PATH``
+in nerfstudio-data, COLMAP or Blender format, used in place), plans the runs of the chosen
+tables and scenes (a run shared by several tables is trained once), generates the presets and
+triangulates the seed points of folders without them (:mod:`stealth_ns.seed_points`, into a
+seeded copy under ``OUTPUT/scenes``), trains what is missing with a progress bar across runs
+(each ``ns-train``'s output goes to ``ns-train.log`` in its run folder), reuses finished runs
+and retrains interrupted ones (see :mod:`stealth_ns.evaluation.runs`), compares every poisoned
+run with the clean run of its scene (:func:`stealth_ns.evaluation.report.compare_runs`, cached
+as ``metrics.json`` in the poisoned run's folder) and writes ``OUTPUT/tables.md`` (markdown
+shaped like the paper's tables) and ``OUTPUT/results.json`` (every number, the scenes'
+sources, the environment, timings).
 
-Layout under ``OUTPUT``: ``scenes/PRESET-seedS`` (generated once), ``runs/SCENE-ITERSit/METHOD/RUN``
-(one nerfstudio run each), ``tables.md``, ``results.json``. Both outputs are rewritten after
-every run, so they fill in while the benchmark runs (``"complete": false`` until the end).
+Layout under ``OUTPUT``: ``scenes/PRESET-seedS`` (generated once), ``scenes/NAME`` and
+``scenes/NAME.seed-points.json`` (a folder's seeded copy and its record, made once),
+``scenes/*.views.json`` (the KDE views), ``runs/SCENE-seedS-ITERSit/METHOD/RUN`` (one nerfstudio
+run each), ``tables.md``, ``results.json``. Both outputs are rewritten after every run, so they
+fill in while the benchmark runs (``"complete": false`` until the end).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 import time
@@ -28,7 +36,7 @@ from collections.abc import Callable, Sequence
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation.runs import (
@@ -44,6 +52,10 @@ from stealth_ns.evaluation.runs import (
     write_json_atomic,
 )
 from stealth_ns.method_configs.attack_experiments import (
+    DEFAULT_SCENES,
+    FOLDERS,
+    KDE_LEVELS,
+    PRESETS,
     SCENES,
     TABLES,
     RunSpec,
@@ -51,6 +63,7 @@ from stealth_ns.method_configs.attack_experiments import (
     clean_run,
     get_run,
     get_table,
+    scene_kind,
 )
 
 DEFAULT_OUTPUT = Path("bench-attack-output")
@@ -58,13 +71,213 @@ DEFAULT_OUTPUT = Path("bench-attack-output")
 METHODS: tuple[str, ...] = ("stealth-splat-lite", "stealth-splat")
 METRICS_FILE = "metrics.json"
 METRICS_LOG = "metrics.log"
-KDE_LEVELS = ("easy", "median", "hard")
 SUCCESS_RULE = "V-illusory PSNR > 25 dB and V-test PSNR drop <= 3 dB"
 NOT_IMPLEMENTED = (
     "Not implemented in stealth-ns: the paper's IPA-NeRF (Nerfacto), IPA-NeRF (Instant-NGP) and "
-    "IPA-Splat baselines (no rows for them), and its real datasets (Mip-NeRF 360, Tanks & Temples, "
-    "Free), replaced by the generated scenes."
+    "IPA-Splat baselines (no rows for them), and its datasets (Mip-NeRF 360, Tanks & Temples, "
+    "Free), replaced by generated scenes and dataset folders (the real capture fox where present)."
 )
+
+
+# ------------------------------------------------------------------------------ scenes
+FolderFormat = Literal["nerfstudio-data", "colmap", "blender"]
+#: Where a COLMAP folder's model may be, relative to the folder (nerfstudio's default second).
+COLMAP_DIRS: tuple[str, ...] = ("sparse/0", "colmap/sparse/0", "sparse")
+#: ``OUTPUT/scenes/NAME`` + this: the record of a dataset folder's triangulated seed points.
+SEED_POINTS_MARKER = ".seed-points.json"
+_SCENE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+
+
+@dataclass(frozen=True)
+class SceneSource:
+    """A scene of ``--scenes``: a generated preset, or a dataset folder (used in place, never written)."""
+
+    name: str
+    path: Path | None = None
+    """The dataset folder (absolute); None for a preset."""
+    given: str = ""
+    """The folder as given on the command line."""
+    format: FolderFormat | None = None
+    seed_points: Literal["generated", "ply_file_path", "colmap", "triangulated"] = "generated"
+    """Where the seed points come from: a preset's generator, the transforms.json's
+    ``ply_file_path``, the COLMAP model's points3D, or :func:`stealth_ns.seed_points.make_seed_points`
+    (a seeded copy in ``OUTPUT/scenes/NAME`` that references the folder's images)."""
+    colmap_path: str | None = None
+    """The COLMAP model folder, relative to ``path``."""
+    files: tuple[tuple[str, str], ...] = ()
+    """``(relative path, sha256)`` of the files that define the dataset (transforms.json, the COLMAP
+    model); their hash :attr:`sha256` identifies it."""
+
+    @property
+    def is_preset(self) -> bool:
+        return self.path is None
+
+    @property
+    def triangulated(self) -> bool:
+        """The dataset has no seed points: the bench makes them first."""
+        return self.seed_points == "triangulated"
+
+    @property
+    def sha256(self) -> str:
+        """The content hash of the dataset: the sha256 of its transforms.json when that is the only
+        file, else of the ``sha256sum``-style listing of :attr:`files`."""
+        if len(self.files) == 1:
+            return self.files[0][1]
+        return hashlib.sha256("".join(f"{h}  {rel}\n" for rel, h in self.files).encode()).hexdigest()
+
+    @property
+    def dataparser(self) -> tuple[str, tuple[str, ...]]:
+        """The nerfstudio dataparser and its options after ``--data``."""
+        if self.format == "colmap":
+            # --downscale-factor 1: nerfstudio would otherwise offer (interactively) to write
+            # downscaled images_N folders into the dataset for images over 1600 px
+            return "colmap", ("--colmap-path", str(self.colmap_path), "--downscale-factor", "1")
+        return "nerfstudio-data", ()
+
+    @property
+    def train_args(self) -> tuple[str, ...]:
+        """Method options the dataset needs: a Blender scene's RGBA images on white, as NeRF-synthetic."""
+        return ("--pipeline.model.background-color", "white") if self.format == "blender" else ()
+
+    def describe(self) -> str:
+        if self.is_preset:
+            return "generated preset"
+        where = {
+            "ply_file_path": "seed points from its ply_file_path",
+            "colmap": f"seed points from the COLMAP model {self.colmap_path}",
+            "triangulated": "no seed points",
+        }[self.seed_points]
+        return f"{self.format}, {where}; used in place, never written"
+
+
+def _sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _hashes(root: Path, rels: Sequence[str]) -> tuple[tuple[str, str], ...]:
+    try:
+        return tuple((rel, _sha256_file(root / rel)) for rel in rels)
+    except OSError as err:
+        raise StealthNSError(f"cannot read {root}: {err.strerror or err}") from None
+
+
+def inspect_folder(name: str, folder: str) -> SceneSource:
+    """The :class:`SceneSource` of a dataset folder, by its format (StealthNSError if none fits).
+
+    ``transforms.json`` -> nerfstudio-data (its ``ply_file_path`` gives the seed points, else they
+    are triangulated); ``sparse/0`` (or ``colmap/sparse/0``, ``sparse``) with ``images/`` -> COLMAP;
+    ``transforms_train.json`` -> Blender (converted with triangulated seed points).
+    """
+    path = Path(os.path.abspath(Path(folder).expanduser()))  # absolute, ".." folded
+    if not path.exists():
+        raise StealthNSError(f"scene {name}: {folder} not found")
+    if not path.is_dir():
+        raise StealthNSError(f"scene {name}: {folder} is not a folder (give the dataset folder)")
+    transforms = path / "transforms.json"
+    if transforms.is_file():
+        try:
+            meta = json.loads(transforms.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as err:
+            raise StealthNSError(f"scene {name}: cannot read {transforms}: {err}") from None
+        if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
+            raise StealthNSError(
+                f"scene {name}: {transforms} is not a nerfstudio transforms.json (no frames)"
+            )
+        ply = meta.get("ply_file_path")
+        if ply and not (path / str(ply)).is_file():
+            raise StealthNSError(f"scene {name}: the ply_file_path {ply!r} of {transforms} does not exist")
+        seed = "ply_file_path" if ply else "triangulated"
+        return SceneSource(
+            name, path, folder, "nerfstudio-data", seed, files=_hashes(path, ["transforms.json"])
+        )
+    for rel in COLMAP_DIRS:
+        model = path / rel
+        if not any((model / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+            continue
+        if not (path / "images").is_dir():
+            raise StealthNSError(f"scene {name}: {folder} has a COLMAP model in {rel} but no images/ folder")
+        if not any((model / f"points3D.{ext}").is_file() for ext in ("bin", "txt")):
+            raise StealthNSError(f"scene {name}: the COLMAP model {model} has no points3D (the seed points)")
+        rels = sorted(f"{rel}/{f.name}" for f in model.iterdir() if f.is_file())
+        return SceneSource(name, path, folder, "colmap", "colmap", rel, files=_hashes(path, rels))
+    if (path / "transforms_train.json").is_file():
+        rels = [
+            f"transforms_{s}.json"
+            for s in ("train", "val", "test")
+            if (path / f"transforms_{s}.json").is_file()
+        ]
+        return SceneSource(name, path, folder, "blender", "triangulated", files=_hashes(path, rels))
+    raise StealthNSError(
+        f"scene {name}: unknown dataset format in {folder}: no transforms.json (nerfstudio-data), "
+        f"{' / '.join(COLMAP_DIRS)} with images/ (COLMAP) or transforms_train.json (Blender)"
+    )
+
+
+def seeded_dir(output: Path, name: str) -> Path:
+    """``OUTPUT/scenes/NAME``: the seeded copy of a dataset folder without seed points."""
+    return output / "scenes" / name
+
+
+def seed_points_marker(output: Path, name: str) -> Path:
+    return output / "scenes" / f"{name}{SEED_POINTS_MARKER}"
+
+
+def read_seed_points(output: Path, source: SceneSource) -> dict[str, Any] | None:
+    """The record of ``source``'s triangulated seed points when it is still valid: made from the
+    same folder with the same content, and the dataset and point cloud it names exist."""
+    try:
+        data = json.loads(seed_points_marker(output, source.name).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or (data.get("source"), data.get("source_sha256")) != (
+        str(source.path),
+        source.sha256,
+    ):
+        return None
+    try:
+        if not (Path(data["dataset"]).exists() and Path(data["ply"]).is_file()):
+            return None
+    except (KeyError, TypeError):
+        return None
+    return data
+
+
+def ensure_seed_points(output: Path, source: SceneSource) -> dict[str, Any]:
+    """Triangulate the seed points of a dataset folder into ``OUTPUT/scenes/NAME`` unless a valid
+    record of them is there (:func:`read_seed_points`); returns the record."""
+    record = read_seed_points(output, source)
+    if record is not None:
+        return record
+    try:
+        from stealth_ns.seed_points import make_seed_points
+    except ImportError as err:
+        raise StealthNSError(
+            f"cannot make seed points: stealth_ns.seed_points is not available ({err})"
+        ) from None
+    folder = seeded_dir(output, source.name)
+    print(f"triangulating the seed points of {source.name} ({source.path}) into {folder}", flush=True)
+    assert source.path is not None
+    summary = make_seed_points(source.path, output=folder, overwrite=True, seed=0)
+    ply = Path(summary.ply).absolute()
+    record = {
+        "source": str(source.path),
+        "source_sha256": source.sha256,
+        "format": source.format,
+        "dataset": str(Path(summary.dataset).absolute()),
+        "ply": str(ply),
+        "ply_sha256": _sha256_file(ply),
+        "n_points": int(summary.n_points),
+        "seconds": round(float(summary.seconds), 2),
+        "seed": 0,
+        "made_at": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
+    }
+    write_json_atomic(seed_points_marker(output, source.name), record)
+    print(f"  {record['n_points']} seed points in {record['seconds']:.0f} s: {ply}", flush=True)
+    return record
 
 
 # ------------------------------------------------------------------------------ options
@@ -88,22 +301,78 @@ def parse_tables(values: Sequence[str | int] | None) -> tuple[int, ...]:
     return tuple(sorted(set(chosen)))
 
 
-def parse_scenes(values: Sequence[str] | None) -> tuple[str, ...]:
-    """Scene presets from ``--scenes`` values (``orbit``, ``forward``, ``all``); None = all."""
-    if values is None:
-        return SCENES
-    chosen: set[str] = set()
-    for value in values:
-        for item in str(value).replace(",", " ").split():
+def parse_scenes(values: Sequence[str] | None) -> tuple[tuple[SceneSource, ...], tuple[str, ...]]:
+    """The scenes of ``--scenes`` (None: :data:`DEFAULT_SCENES`) and one "skipping ..." line per
+    dataset folder of the default that is absent.
+
+    Values are presets (``orbit``), ``all`` (the default list), a declared folder by its name
+    (``fox``: its default path) or ``NAME=PATH`` (a dataset folder; the path may hold commas and
+    spaces). A folder given explicitly must exist; one of the default list (or of ``all``) that
+    does not is skipped. Bad specs raise :class:`StealthNSError`: unknown name, empty path, a
+    name given twice, a folder named like a preset, a missing folder, an unknown dataset format.
+    """
+    optional_default = values is None
+    specs: list[tuple[str, str | None, bool]] = []  # (name, folder or None for a preset, optional)
+    for value in DEFAULT_SCENES if values is None else values:
+        text = str(value).strip()
+        for item in [text] if "=" in text else text.replace(",", " ").split():
             if item.lower() == "all":
-                chosen.update(SCENES)
-            elif item in SCENES:
-                chosen.add(item)
+                specs += [_scene_spec(v, optional=True) for v in DEFAULT_SCENES]
             else:
-                raise StealthNSError(f"unknown scene {item!r}; scenes: {' '.join(SCENES)}")
-    if not chosen:
-        raise StealthNSError(f"no scene given; scenes: {' '.join(SCENES)}")
-    return tuple(s for s in SCENES if s in chosen)
+                specs.append(_scene_spec(item, optional=optional_default))
+    if not specs:
+        raise StealthNSError(f"no scene given; scenes: {_known_scenes()}")
+    seen: dict[str, str | None] = {}
+    chosen: list[tuple[str, str | None, bool]] = []
+    for name, folder, optional in specs:
+        if name in seen:
+            if folder is None and seen[name] is None:
+                continue  # a preset twice ("all orbit"): the same scene
+            raise StealthNSError(f"scene {name!r} is given twice in --scenes")
+        seen[name] = folder
+        chosen.append((name, folder, optional))
+    sources: list[SceneSource] = []
+    skipped: list[str] = []
+    for name, folder, optional in chosen:
+        if folder is None:
+            sources.append(SceneSource(name))
+        elif optional and not Path(folder).expanduser().exists():
+            skipped.append(
+                f"skipping {name}: {folder} not found (a dataset folder of the default --scenes; "
+                f"give --scenes {name}=PATH to use it from elsewhere)"
+            )
+        else:
+            sources.append(inspect_folder(name, folder))
+    order = {name: i for i, name in enumerate(SCENES)}
+    sources.sort(key=lambda src: order.get(src.name, len(order)))  # stable: other folders as given
+    return tuple(sources), tuple(skipped)
+
+
+def _known_scenes() -> str:
+    return f"{' '.join(SCENES)}, or NAME=PATH for a dataset folder"
+
+
+def _scene_spec(item: str, optional: bool) -> tuple[str, str | None, bool]:
+    """``(name, folder or None, optional)`` of one ``--scenes`` item."""
+    if "=" not in item:
+        if item in PRESETS:
+            return item, None, False
+        if item in FOLDERS:
+            return item, FOLDERS[item], optional
+        raise StealthNSError(f"unknown scene {item!r}; scenes: {_known_scenes()}")
+    name, folder = (part.strip() for part in item.split("=", 1))
+    if not _SCENE_NAME.fullmatch(name) or name.lower() == "all":
+        raise StealthNSError(
+            f"bad scene name {name!r} in {item!r}: use letters, digits, '_', '-' and '.' (NAME=PATH)"
+        )
+    if name in PRESETS or any(name.startswith(f"{p}-seed") for p in PRESETS):
+        raise StealthNSError(
+            f"scene name {name!r} ({item!r}) is taken by the generated preset {name.split('-')[0]}; "
+            "give the folder another name"
+        )
+    if not folder:
+        raise StealthNSError(f"no folder given for scene {name!r} ({item!r}); use NAME=PATH")
+    return name, folder, optional
 
 
 def method_iterations(method: str) -> int:
@@ -146,10 +415,19 @@ class Plan:
     tables: tuple[TableSpec, ...]
     scenes: tuple[str, ...]
     scene_dirs: dict[str, Path]
+    """The dataset each scene trains on (``--data``): a generated scene, a dataset folder, or the
+    seeded copy of one (its predicted folder until the seed points are made)."""
     scene_ready: dict[str, bool]
     views: dict[str, dict[str, str]]
     runs: list[PlannedRun]
     skipped: list[str] = field(default_factory=list)
+    sources: dict[str, SceneSource] = field(default_factory=dict)
+    seed_points: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """The record of the triangulated seed points of each dataset folder that has them made."""
+    skipped_scenes: list[str] = field(default_factory=list)
+    """"skipping NAME: ..." for each folder of the default ``--scenes`` that is absent."""
+    scene_errors: dict[str, str] = field(default_factory=dict)
+    """Scenes that cannot be used (seed points or KDE views failed): their runs fail, the rest go on."""
 
     def get(self, key: str) -> PlannedRun:
         for planned in self.runs:
@@ -160,6 +438,26 @@ class Plan:
     def counts(self) -> dict[str, int]:
         return {s: sum(p.status == s for p in self.runs) for s in ("missing", "partial", "finished")}
 
+    def _scene_lines(self, scene: str) -> list[str]:
+        src = self.sources.get(scene, SceneSource(scene))
+        ready = self.scene_ready[scene]
+        if src.is_preset:
+            return [
+                f"  scene:   {scene} -> {self.scene_dirs[scene]}" + ("" if ready else "  (to be generated)")
+            ]
+        lines = [f"  scene:   {scene} -> {src.path}  ({src.describe()})"]
+        if src.triangulated:
+            record = self.seed_points.get(scene)
+            state = (
+                f"done: {record['n_points']} points, reused; trains on {self.scene_dirs[scene]}"
+                if record
+                else "to be made first"
+            )
+            lines.append(
+                f"           seed points: triangulated into {seeded_dir(self.output, scene)}  ({state})"
+            )
+        return lines
+
     def describe(self, dry_run: bool) -> str:
         """The plan as text: settings, then one entry per run (what happens to it, its ns-train command)."""
         lines = ["stealth-ns bench attack" + (" --dry-run: nothing is trained or written" if dry_run else "")]
@@ -167,9 +465,9 @@ class Plan:
         lines.append(f"  method:  {self.method}, {self.iterations} iterations, seed {self.seed}")
         lines.append("  tables:  " + "; ".join(f"{t.number} {t.title}" for t in self.tables))
         for scene in self.scenes:
-            state = "" if self.scene_ready[scene] else "  (to be generated)"
-            lines.append(f"  scene:   {scene} -> {self.scene_dirs[scene]}{state}")
+            lines += self._scene_lines(scene)
         lines += [f"  note:    {note}" for note in self.skipped]
+        lines += [f"  error:   {scene}: {err} (its runs fail)" for scene, err in self.scene_errors.items()]
         c = self.counts()
         lines.append("")
         lines.append(
@@ -243,13 +541,15 @@ def ensure_scene(path: Path, preset: str, seed: int, scene_options: dict[str, An
     make_scene(preset=preset, output=path, seed=seed, overwrite=True, **(scene_options or {}))
 
 
-def kde_views(path: Path, write_cache: bool) -> dict[str, str]:
-    """Easy / Median / Hard training views of a scene by the KDE protocol, cached next to the scene."""
-    cache = path.with_name(path.name + ".views.json")
-    scene_json = (path / "scene.json").read_text()
+def kde_views(dataset: Path, cache: Path, fingerprint: str, write_cache: bool) -> dict[str, str]:
+    """Easy / Median / Hard training views of a dataset by the KDE protocol (``rank_scene_views``).
+
+    Cached in ``cache`` (next to the scene, under ``OUTPUT/scenes``) while the dataset's
+    ``fingerprint`` (a generated scene's scene.json, a folder's content hash) is the same.
+    """
     try:
         data = json.loads(cache.read_text())
-        if data.get("scene.json") == scene_json and set(data.get("views", {})) == set(KDE_LEVELS):
+        if data.get("fingerprint") == fingerprint and set(data.get("views", {})) == set(KDE_LEVELS):
             return {k: str(v) for k, v in data["views"].items()}
     except (OSError, ValueError, AttributeError):
         pass
@@ -257,11 +557,18 @@ def kde_views(path: Path, write_cache: bool) -> dict[str, str]:
         from stealth_ns.evaluation.difficulty import rank_scene_views
     except ImportError as err:
         raise StealthNSError(f"the KDE difficulty protocol is not available ({err})") from None
-    ranking = rank_scene_views(path)
+    ranking = rank_scene_views(dataset)
     views = {"easy": ranking.easy, "median": ranking.median, "hard": ranking.hard}
     if write_cache:
-        write_json_atomic(cache, {"scene.json": scene_json, "views": views})
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(cache, {"fingerprint": fingerprint, "dataset": str(dataset), "views": views})
     return views
+
+
+def _scene_fingerprint(plan_dir: Path, src: SceneSource, record: dict[str, Any] | None) -> str:
+    if src.is_preset:
+        return (plan_dir / "scene.json").read_text()
+    return src.sha256 + (f":{record['ply_sha256']}" if record else "")
 
 
 def make_plan(
@@ -273,15 +580,18 @@ def make_plan(
     seed: int = 0,
     scene_options: dict[str, Any] | None = None,
     write_cache: bool = False,
+    rank_views: bool = True,
 ) -> Plan:
     """Plan the runs of ``tables`` on ``scenes`` (bad input: :class:`StealthNSError`).
 
-    Looks at the disk (which runs are finished, which scenes exist) but writes nothing unless
-    ``write_cache`` (the KDE view cache). Runs whose poisoned view comes from the KDE protocol
-    get a placeholder view while their scene does not exist yet.
+    Looks at the disk (which runs are finished, which scenes exist, which dataset folders have
+    their seed points made) but writes nothing unless ``write_cache`` (the KDE view cache). Runs
+    whose poisoned view comes from the KDE protocol get a placeholder view while their scene
+    does not exist yet (or has no seed points yet), or without ``rank_views``.
     """
     numbers = parse_tables(tables)
-    chosen_scenes = parse_scenes(scenes)
+    sources, skipped_scenes = parse_scenes(scenes)
+    chosen_scenes = tuple(src.name for src in sources)
     if method not in METHODS:
         raise StealthNSError(f"unknown method {method!r}; methods: {', '.join(METHODS)}")
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:
@@ -296,12 +606,10 @@ def make_plan(
     skipped: list[str] = []
     uses: dict[str, list[int]] = {}
     for number in numbers:
-        table = get_table(number)
+        table = get_table(number).for_scenes(chosen_scenes)
         keys = table.run_keys(chosen_scenes)
         if not keys:
-            skipped.append(
-                f"Table {number} skipped: it runs on {' and '.join(table.scenes)}, not in --scenes"
-            )
+            skipped.append(f"Table {number} skipped: it runs on {', '.join(table.scenes)}, not in --scenes")
             continue
         table_specs.append(table)
         for key in keys:
@@ -315,39 +623,69 @@ def make_plan(
         numbers_on_scene = {n for key, ns in uses.items() if key.startswith(f"{scene}/") for n in ns}
         uses.setdefault(clean_run(scene).key, []).extend(numbers_on_scene)
 
-    dirs = {s: scene_dir(output, s, seed, scene_options) for s in used_scenes}
-    ready = {s: scene_is_ready(dirs[s], s, seed, scene_options) for s in used_scenes}
+    src_of = {src.name: src for src in sources if src.name in used_scenes}
+    dirs: dict[str, Path] = {}
+    ready: dict[str, bool] = {}
+    records: dict[str, dict[str, Any]] = {}
+    for scene, src in src_of.items():
+        if src.is_preset:
+            dirs[scene] = scene_dir(output, scene, seed, scene_options)
+            ready[scene] = scene_is_ready(dirs[scene], scene, seed, scene_options)
+        elif src.triangulated:
+            record = read_seed_points(output, src)
+            if record is not None:
+                records[scene] = record
+            dirs[scene] = Path(record["dataset"]) if record else seeded_dir(output, scene)
+            ready[scene] = record is not None
+        else:
+            assert src.path is not None
+            dirs[scene], ready[scene] = src.path, True
     views: dict[str, dict[str, str]] = {}
+    errors: dict[str, str] = {}
     for scene in used_scenes:
         needs_kde = any(get_run(*k.split("/")).view in KDE_LEVELS for k in uses if k.startswith(f"{scene}/"))
-        if ready[scene] and needs_kde:
-            views[scene] = kde_views(dirs[scene], write_cache)
+        if rank_views and ready[scene] and needs_kde:
+            src = src_of[scene]
+            base = dirs[scene] if src.is_preset else output / "scenes" / scene
+            cache = base.with_name(base.name + ".views.json")
+            fingerprint = _scene_fingerprint(dirs[scene], src, records.get(scene))
+            try:
+                views[scene] = kde_views(dirs[scene], cache, fingerprint, write_cache)
+            except StealthNSError as err:
+                errors[scene] = f"the KDE protocol cannot rank its views: {err}"
 
     planned: list[PlannedRun] = []
     first_use = list(uses)  # in table order, then row order: Table 6 runs in the paper's row order
 
     def order(key: str) -> tuple[int, bool, int]:
         run = get_run(*key.split("/"))
-        return SCENES.index(run.scene), not run.clean, first_use.index(key)
+        return used_scenes.index(run.scene), not run.clean, first_use.index(key)
 
     for key in sorted(uses, key=order):
         run = get_run(*key.split("/"))
-        extra = list(run.args)
+        src = src_of[run.scene]
+        extra = [*src.train_args, *run.args]
         view = None
         if run.view in KDE_LEVELS:
             view = views.get(run.scene, {}).get(run.view) or f"<{run.view.upper()} view of the KDE protocol>"
             extra += ["--pipeline.attack.views", view]
         if not run.clean:
             extra += ["--pipeline.attack.seed", str(seed)]
+        dataparser, dataparser_args = src.dataparser
+        # a preset's folder name holds its seed and options; a folder's experiment names the training seed
+        experiment = dirs[run.scene].name if src.is_preset else f"{run.scene}-seed{seed}"
         spec = TrainSpec(
             scene=dirs[run.scene],
             name=run.name,
             output_dir=output / "runs",
-            experiment=f"{dirs[run.scene].name}-{iterations}it",
+            experiment=f"{experiment}-{iterations}it",
             extra=tuple(extra),
             method=method,
             iterations=int(iterations),
             seed=int(seed),
+            dataparser=dataparser,
+            dataparser_args=dataparser_args,
+            scene_id=None if src.is_preset else f"{run.scene}:{src.sha256[:16]}",
         )
         planned.append(PlannedRun(run, spec, run_status(spec), tuple(sorted(set(uses[key]))), view))
     return Plan(
@@ -362,6 +700,10 @@ def make_plan(
         views=views,
         runs=planned,
         skipped=skipped,
+        sources=src_of,
+        seed_points=records,
+        skipped_scenes=list(skipped_scenes),
+        scene_errors=errors,
     )
 
 
@@ -455,6 +797,9 @@ def environment(plan: Plan, started: float) -> dict[str, Any]:
         "platform": platform.platform(),
         "torch": torch.__version__,
         "nerfstudio": _version("nerfstudio"),
+        "gsplat": _version("gsplat"),
+        "numpy": _version("numpy"),
+        "pycolmap": _version("pycolmap"),
         "stealth_ns": _version("stealth-ns"),
         "git_commit": _git_commit(),
     }
@@ -477,27 +822,75 @@ def _run_entry(p: PlannedRun) -> dict[str, Any]:
     }
 
 
+def _folder_info(src: SceneSource) -> dict[str, Any]:
+    """Views and resolution of a nerfstudio-data folder (from its transforms.json), else unknowns."""
+    info: dict[str, Any] = {"resolution": None, "views": None}
+    if src.format != "nerfstudio-data" or src.path is None:
+        return info
+    try:
+        meta = json.loads((src.path / "transforms.json").read_text(encoding="utf-8"))
+        frames = meta["frames"]
+        first = frames[0] if frames else {}
+        w, h = first.get("w", meta.get("w")), first.get("h", meta.get("h"))
+        info["views"] = len(frames)
+        info["resolution"] = [int(w), int(h)] if w and h else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        pass
+    return info
+
+
+def scene_entry(plan: Plan, scene: str) -> dict[str, Any]:
+    """A scene's record in results.json: where it comes from (preset + seed, or folder + content
+    hash), what it trains on, its seed points and KDE views."""
+    src = plan.sources.get(scene, SceneSource(scene))
+    dataparser, dataparser_args = src.dataparser
+    entry: dict[str, Any] = {
+        "kind": scene_kind(scene),
+        "dataset": str(plan.scene_dirs[scene]),
+        "dataparser": [dataparser, *dataparser_args],
+    }
+    if src.is_preset:
+        info = _scene_info(plan.scene_dirs[scene]) or {}
+        entry.update(
+            source="preset",
+            preset=scene,
+            seed=plan.seed,
+            path=str(plan.scene_dirs[scene]),
+            resolution=info.get("resolution"),
+            views=info.get("views"),
+            n_train=info.get("n_train"),
+            n_test=info.get("n_test"),
+            seed_points="generated",
+        )
+    else:
+        entry.update(
+            source="folder",
+            path=str(src.path),
+            given=src.given,
+            format=src.format,
+            content_sha256=src.sha256,
+            files_sha256=dict(src.files),
+            **_folder_info(src),
+            seed_points=src.seed_points,
+        )
+        if src.triangulated:
+            entry["seed_points_made"] = plan.seed_points.get(scene)
+    entry["kde_views"] = plan.views.get(scene)
+    if scene in plan.scene_errors:
+        entry["error"] = plan.scene_errors[scene]
+    return entry
+
+
 def build_results(plan: Plan, runs: dict[str, dict[str, Any]], env: dict[str, Any], complete: bool) -> dict:
     """The results.json document: environment, scenes, runs (with metrics) and the tables' numbers."""
-    scenes = {}
-    for scene in plan.scenes:
-        info = _scene_info(plan.scene_dirs[scene]) or {}
-        scenes[scene] = {
-            "path": str(plan.scene_dirs[scene]),
-            "preset": scene,
-            "resolution": info.get("resolution"),
-            "views": info.get("views"),
-            "n_train": info.get("n_train"),
-            "n_test": info.get("n_test"),
-            "kde_views": plan.views.get(scene),
-        }
     return {
         "generator": "stealth-ns bench attack",
         "complete": complete,
         "environment": env,
         "not_implemented": NOT_IMPLEMENTED,
         "success_rule": SUCCESS_RULE,
-        "scenes": scenes,
+        "scenes": {scene: scene_entry(plan, scene) for scene in plan.scenes},
+        "skipped_scenes": list(plan.skipped_scenes),
         "runs": runs,
         "tables": {str(t.number): table_data(t, runs, plan.scenes) for t in plan.tables},
     }
@@ -536,6 +929,13 @@ def execute(plan: Plan) -> dict[str, Any]:
             tag = f"[{i}/{len(plan.runs)}]"
             doing = "reusing" if p.status == "finished" else "training"
             bar.set_postfix_str(f"{p.key} {doing}")
+            if p.run.scene in plan.scene_errors:  # no seed points or no KDE views: nothing to train on
+                error = f"scene {p.run.scene}: {plan.scene_errors[p.run.scene]}"
+                entry.update(status="failed", error=error)
+                failures.append(p.key)
+                bar.write(f"{tag} FAILED {p.key}: {error}")
+                bar.update(1)
+                continue
             if bar.disable and p.status != "finished":
                 print(f"{tag} training {p.key} (log: {p.spec.run_dir / TRAIN_LOG})", flush=True)
             try:
@@ -616,13 +1016,29 @@ def run_bench(
     scene_options: dict[str, Any] | None = None,
 ) -> Plan | dict[str, Any]:
     """``stealth-ns bench attack``: the plan (``dry_run``) or the results document."""
-    plan = make_plan(output, tables, scenes, method, iterations, seed, scene_options)
+    # without --dry-run this first plan only checks the input: the views are ranked below
+    plan = make_plan(output, tables, scenes, method, iterations, seed, scene_options, rank_views=dry_run)
+    for line in plan.skipped_scenes:
+        print(line, flush=True)
     if dry_run:
         print(plan.describe(dry_run=True))
         return plan
-    for scene in plan.scenes:
-        ensure_scene(plan.scene_dirs[scene], scene, plan.seed, scene_options)
+    failed: dict[str, str] = {}
+    for scene in plan.scenes:  # generate the presets, make the seed points of folders without them
+        src = plan.sources[scene]
+        try:
+            if src.is_preset:
+                ensure_scene(plan.scene_dirs[scene], scene, plan.seed, scene_options)
+            elif src.triangulated:
+                ensure_seed_points(plan.output, src)
+        except Exception as err:  # one unusable scene must not stop the others
+            what = "generating the scene" if src.is_preset else "making its seed points"
+            failed[scene] = f"{what} failed: " + (
+                str(err) if isinstance(err, StealthNSError) else f"{type(err).__name__}: {err}"
+            )
+            print(f"FAILED {scene}: {failed[scene]}", file=sys.stderr, flush=True)
     plan = make_plan(output, tables, scenes, method, plan.iterations, seed, scene_options, write_cache=True)
+    plan.scene_errors.update(failed)
     print(plan.describe(dry_run=False), flush=True)
     print(flush=True)
     results = execute(plan)
@@ -783,22 +1199,25 @@ def _runs_table(runs: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _scene_text(name: str, scene: dict[str, Any]) -> str:
+    size = "x".join(map(str, scene["resolution"])) if scene.get("resolution") else "?"
+    where = "" if scene.get("source", "preset") == "preset" else f"folder {scene.get('path')}, "
+    return f"{name} ({where}{size}, {scene.get('views') or '?'} views)"
+
+
 def render_markdown(results: dict[str, Any]) -> str:
     """``tables.md``: a header (method, environment, what is not implemented), the tables, all runs."""
     env = results.get("environment", {})
     scenes = results.get("scenes", {})
-    scene_text = ", ".join(
-        f"{name} ({'x'.join(map(str, s['resolution'])) if s.get('resolution') else '?'}, "
-        f"{s.get('views', '?')} views)"
-        for name, s in scenes.items()
-    )
+    scene_text = ", ".join(_scene_text(name, s) for name, s in scenes.items())
     lines = [
-        "# StealthAttack experiments: the paper's tables on the generated scenes",
+        "# StealthAttack experiments: the paper's tables on generated scenes and dataset folders",
         "",
         f"Produced by `stealth-ns bench attack` on {env.get('date', '?')}: method "
         f"{env.get('method', '?')}, {env.get('iterations', '?')} iterations, seed {env.get('seed', '?')}, "
         f"device {env.get('device', '?')} ({env.get('cpu_count', '?')} CPU cores); torch "
-        f"{env.get('torch', '?')}, nerfstudio {env.get('nerfstudio', '?')}. Scenes: {scene_text or '?'}.",
+        f"{env.get('torch', '?')}, nerfstudio {env.get('nerfstudio', '?')}, "
+        f"gsplat {env.get('gsplat') or '–'}, numpy {env.get('numpy', '?')}. Scenes: {scene_text or '?'}.",
         "",
         "Every number is measured from the runs listed at the end; `results.json` next to this file has "
         "all of them, with timings. V-illusory: masked metrics of the poisoned view(s) against the "

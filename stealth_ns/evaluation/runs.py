@@ -6,8 +6,8 @@ A run lives where nerfstudio puts it, ``OUTPUT_DIR/EXPERIMENT/METHOD/NAME`` (``-
 * ``ns-train`` exited 0 and :func:`train` then wrote the marker file :data:`MARKER`;
 * the final checkpoint ``nerfstudio_models/step-{N-1}.ckpt`` named in the marker exists
   (``ns-train`` exits 0 after Ctrl-C too, without it);
-* the marker records the same method, scene, extra arguments and seed as the spec (and the same
-  iteration count when the spec sets one).
+* the marker records the same method, scene, extra arguments, dataparser (when not plain
+  ``nerfstudio-data``) and seed as the spec (and the same iteration count when the spec sets one).
 
 Anything else found in the run folder -- an interrupted run, or one trained with other settings
 under the same name -- is deleted by :func:`train` before it trains again.
@@ -102,7 +102,8 @@ class TrainSpec:
     """One ``ns-train`` run: which scene, under which name, with which extra options."""
 
     scene: Path
-    """The nerfstudio-data scene folder (``--data``)."""
+    """The dataset (``--data`` of the dataparser): a nerfstudio-data folder or transforms JSON, or a
+    COLMAP folder."""
     name: str
     """Run name (``--timestamp``): the run folder's name."""
     output_dir: Path
@@ -119,6 +120,13 @@ class TrainSpec:
     """``--machine.seed``."""
     threads: int | None = None
     """CPU threads of the training (OMP_NUM_THREADS); None = all cores. Not part of the run's identity."""
+    dataparser: str = "nerfstudio-data"
+    """The nerfstudio dataparser subcommand (``nerfstudio-data``, ``colmap``)."""
+    dataparser_args: tuple[str, ...] = ()
+    """Dataparser options after ``--data``, e.g. ``("--colmap-path", "sparse/0")``."""
+    scene_id: str | None = None
+    """The scene in the run's identity; None = the dataset folder's name. (The bench gives a dataset
+    folder ``NAME:CONTENT-HASH``, so a run is not reused on other data under the same name.)"""
 
     def __post_init__(self) -> None:
         parts = {"run name": self.name, "experiment": self.experiment, "method": self.method}
@@ -149,7 +157,7 @@ class TrainSpec:
         cmd += ["--timestamp", self.name, "--machine.seed", str(self.seed)]
         if self.iterations is not None:
             cmd += ["--max-num-iterations", str(self.iterations)]
-        cmd += [*self.extra, "nerfstudio-data", "--data", str(self.scene)]
+        cmd += [*self.extra, self.dataparser, "--data", str(self.scene), *self.dataparser_args]
         return cmd
 
     def display_command(self) -> str:
@@ -158,12 +166,15 @@ class TrainSpec:
 
     def identity(self) -> dict[str, Any]:
         """What a finished run must match to be reused (paths excluded, so a moved folder still counts)."""
-        return {
+        identity: dict[str, Any] = {
             "method": self.method,
-            "scene": Path(self.scene).name,
+            "scene": self.scene_id or Path(self.scene).name,
             "extra": list(self.extra),
             "seed": self.seed,
         }
+        if self.dataparser != "nerfstudio-data" or self.dataparser_args:  # old markers have no such key
+            identity["dataparser"] = [self.dataparser, *self.dataparser_args]
+        return identity
 
 
 @dataclass(frozen=True)

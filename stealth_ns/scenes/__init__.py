@@ -1,15 +1,29 @@
-"""Procedural test scenes in nerfstudio-data format, rendered by analytic ray casting.
+"""Procedural test scenes rendered by analytic ray casting, in nerfstudio-data or Blender format.
 
-Use :func:`make_scene` (or ``stealth-ns make-scene``). Two presets:
+Use :func:`make_scene` (or ``stealth-ns make-scene``). Four presets (layouts: :mod:`.presets`):
 
 * ``orbit``: inward-facing 360-degree capture around a group of textured objects (Mip-NeRF 360
-  like), 60 views by default;
-* ``forward``: a free forward walk down a street (Free dataset like), 48 views by default.
+  like), 60 views by default, 128x96;
+* ``forward``: a free forward walk down a street (Free dataset like), 48 views by default, 128x96;
+* ``facing``: a forward-facing hand-held capture of a cluttered scene (LLFF like: cameras on a
+  small planar grid, baseline ~10x smaller than the scene depth, all looking the same way), 24
+  views by default, 128x96;
+* ``object``: an object-centric capture of 1-3 objects on a transparent background
+  (NeRF-synthetic / Blender like: cameras on the upper hemisphere at radius 4 looking at the
+  origin), 150 views (100 train / 25 val / 25 test) by default, 128x128.
 
-Every 8th view (index % 8 == 0) is held out for testing. Depth maps are **z-depth** (distance along
-the camera's -Z axis, world units; 0 where the pixel sees sky), which is what nerfstudio's depth
-losses expect. They are float32 ``.npy`` in world units, so a nerfstudio depth pipeline needs
-``depth_unit_scale_factor=1.0`` (its default, 1e-3, assumes millimetres).
+``orbit``, ``forward`` and ``facing`` are written in nerfstudio-data format (dataparser
+``nerfstudio-data``) with SfM-like seed points in ``sparse_pc.ply`` (surface samples of the
+training views with depth-proportional noise; ``facing`` adds 2% outliers, points pushed along
+their viewing ray, as an SfM reconstruction has); every 8th view (index % 8 == 0) is held out for
+testing. ``object`` is written in the Blender format (dataparser ``blender-data``: RGBA PNGs,
+``transforms_{train,val,test}.json``) without seed points, as NeRF-synthetic has none.
+
+Depth maps are **z-depth** (distance along the camera's -Z axis, world units; 0 where the pixel sees
+sky or background), which is what nerfstudio's depth losses expect. They are float32 ``.npy`` in
+world units, so a nerfstudio depth pipeline needs ``depth_unit_scale_factor=1.0`` (its default,
+1e-3, assumes millimetres). ``scene.json`` records the preset, seed, resolution, split, field of
+view, region of interest and the preset's own parameters.
 """
 
 from __future__ import annotations
@@ -25,9 +39,18 @@ from pathlib import Path
 import numpy as np
 
 from stealth_ns.errors import StealthNSError
-from stealth_ns.scenes.presets import DEFAULT_VIEWS, HFOV_DEG, PRESETS, ScenePlan, make_plan
+from stealth_ns.scenes.presets import (
+    BLENDER_PRESETS,
+    DEFAULT_RESOLUTION,
+    DEFAULT_VIEWS,
+    PRESETS,
+    ScenePlan,
+    make_plan,
+)
 from stealth_ns.scenes.render import Intrinsics, RenderedView, render_view
 from stealth_ns.scenes.writer import (
+    blender_depth_path,
+    blender_transforms_dict,
     clear_generated,
     depth_path,
     image_path,
@@ -35,6 +58,7 @@ from stealth_ns.scenes.writer import (
     write_json,
     write_ply,
     write_png,
+    write_rgba_png,
 )
 
 __all__ = ["PRESETS", "SceneSummary", "make_scene", "parse_resolution", "split_indices"]
@@ -43,6 +67,8 @@ SEED_POINTS = 8000
 """Approximate number of seed points written to ``sparse_pc.ply``."""
 POINT_NOISE = 0.003
 """Seed point position noise: Gaussian sigma = POINT_NOISE * z-depth (world units)."""
+OUTLIER_FRACTION = {"facing": 0.02}
+"""Fraction of seed points turned into SfM-like outliers, per preset (none for the others)."""
 MAX_SIDE = 8192
 
 
@@ -60,16 +86,21 @@ class SceneSummary:
     n_points: int
     seed: int
     seconds: float
+    dataparser: str = "nerfstudio-data"
+    n_val: int | None = None
+    """Number of val views where they differ from the test views (Blender format), else None."""
 
     @property
     def train_command(self) -> str:
-        return f"ns-train stealth-splat-lite --vis tensorboard nerfstudio-data --data {self.output}"
+        return f"ns-train stealth-splat-lite --vis tensorboard {self.dataparser} --data {self.output}"
 
     def __str__(self) -> str:
+        val = "" if self.n_val is None else f"{self.n_val} val / "
+        points = f"{self.n_points} seed points" if self.dataparser != "blender-data" else "no seed points"
         return (
-            f"Wrote {self.preset} scene to {self.output}\n"
-            f"  {self.views} views ({self.n_train} train / {self.n_test} test), {self.width}x{self.height}, "
-            f"{self.n_points} seed points, seed {self.seed}, {self.seconds:.1f} s\n"
+            f"Wrote {self.preset} scene ({self.dataparser} format) to {self.output}\n"
+            f"  {self.views} views ({self.n_train} train / {val}{self.n_test} test), "
+            f"{self.width}x{self.height}, {points}, seed {self.seed}, {self.seconds:.1f} s\n"
             f"Train on it with:\n  {self.train_command}"
         )
 
@@ -122,15 +153,37 @@ def _seed_points(rng: np.random.Generator, view: RenderedView, k: int) -> tuple[
     return xyz, view.centre_colour.reshape(-1, 3)[pick]
 
 
+def _add_outliers(
+    rng: np.random.Generator, xyz: np.ndarray, origins: np.ndarray, fraction: float
+) -> tuple[np.ndarray, int]:
+    """Turn a ``fraction`` of the points ``xyz`` (N, 3) into SfM-like outliers (mis-triangulated
+    matches): moved along the ray from their source camera ``origins`` (N, 3) to a distance scaled
+    by a log-normal factor (sigma 0.4, at least 15% off) plus lateral noise of 3% of the distance.
+    Colours stay. Returns the new points and the number of outliers."""
+    n = int(round(fraction * len(xyz)))
+    if n == 0:
+        return xyz, 0
+    pick = np.sort(rng.choice(len(xyz), size=n, replace=False))
+    factor = np.exp(rng.normal(size=n) * 0.4)
+    factor = np.where(np.abs(factor - 1.0) < 0.15, 1.0 + np.sign(factor - 1.0 + 1e-12) * 0.15, factor)
+    ray = xyz[pick] - origins[pick]
+    dist = np.linalg.norm(ray, axis=1, keepdims=True)
+    out = xyz.copy()
+    out[pick] = origins[pick] + ray * factor[:, None] + rng.normal(size=(n, 3)) * 0.03 * dist
+    return out, n
+
+
 def make_scene(
     preset: str,
     output: Path,
-    resolution: str = "128x96",
+    resolution: str | None = None,
     views: int | None = None,
     seed: int = 0,
     overwrite: bool = False,
 ) -> SceneSummary:
-    """Render a procedural scene and write it to ``output`` in nerfstudio-data format.
+    """Render a procedural scene and write it to ``output`` (nerfstudio-data or Blender format,
+    by preset; see the module doc). ``resolution`` "WIDTHxHEIGHT" defaults to the preset's
+    (128x96, 128x128 for ``object``); ``views`` to the preset's (:data:`DEFAULT_VIEWS`).
 
     Raises :class:`~stealth_ns.errors.StealthNSError` (one-line message) for an unknown preset, a
     malformed resolution, fewer than 8 views, a negative seed, an output that cannot be written, or
@@ -140,7 +193,7 @@ def make_scene(
     t0 = time.perf_counter()
     if preset not in PRESETS:
         raise StealthNSError(f"unknown preset {preset!r}; choose one of: {', '.join(PRESETS)}")
-    width, height = parse_resolution(resolution)
+    width, height = parse_resolution(DEFAULT_RESOLUTION[preset] if resolution is None else resolution)
     if views is None:
         views = DEFAULT_VIEWS[preset]
     if isinstance(views, bool) or not isinstance(views, (int, np.integer)) or views < 8:
@@ -152,45 +205,24 @@ def make_scene(
     _check_output(output, overwrite)
 
     plan: ScenePlan = make_plan(preset, int(seed), views)
-    intr = Intrinsics.from_fov(width, height)
-    train, test = split_indices(views)
-    train_set = set(train)
+    intr = Intrinsics.from_fov(width, height, plan.hfov_deg)
+    common = {
+        "generator": "stealth_ns.scenes",
+        "preset": preset,
+        "seed": int(seed),
+        "resolution": [width, height],
+        "views": views,
+        "hfov_deg": plan.hfov_deg,
+        "centre": plan.centre,
+        "radius": plan.radius,
+        **plan.info,
+    }
     try:
         clear_generated(output)
-        (output / "images").mkdir()
-        (output / "depths").mkdir()
-        rng = np.random.default_rng([int(seed), 303])
-        per_view = math.ceil(SEED_POINTS / len(train))
-        pts, cols = [], []
-        for i, c2w in enumerate(plan.c2w):
-            view = render_view(plan, intr, c2w)
-            write_png(output / image_path(i), view.image)
-            np.save(output / depth_path(i), view.depth)
-            if i in train_set:
-                xyz, rgb = _seed_points(rng, view, per_view)
-                pts.append(xyz)
-                cols.append(rgb)
-        xyz, rgb = np.concatenate(pts), np.concatenate(cols)
-        write_ply(output / "sparse_pc.ply", xyz, rgb)
-        write_json(output / "transforms.json", transforms_dict(intr, plan.c2w, train, test))
-        write_json(
-            output / "scene.json",
-            {
-                "generator": "stealth_ns.scenes",
-                "preset": preset,
-                "seed": int(seed),
-                "resolution": [width, height],
-                "views": views,
-                "n_train": len(train),
-                "n_test": len(test),
-                "hfov_deg": HFOV_DEG,
-                "centre": plan.centre,
-                "radius": plan.radius,
-                "depth": "z-depth along camera -Z, world units, float32 .npy, 0 = sky (no surface)",
-                "n_points": int(xyz.shape[0]),
-                **plan.info,
-            },
-        )
+        if preset in BLENDER_PRESETS:
+            counts = _write_blender(output, plan, intr, common)
+        else:
+            counts = _write_nerfstudio(output, plan, intr, common, int(seed))
     except OSError as err:
         reason = err.strerror or type(err).__name__
         raise StealthNSError(f"could not write scene to {output}: {reason}") from None
@@ -198,11 +230,92 @@ def make_scene(
         preset=preset,
         output=output,
         views=views,
-        n_train=len(train),
-        n_test=len(test),
         width=width,
         height=height,
-        n_points=int(xyz.shape[0]),
         seed=int(seed),
         seconds=time.perf_counter() - t0,
+        **counts,
     )
+
+
+def _write_nerfstudio(output: Path, plan: ScenePlan, intr: Intrinsics, common: dict, seed: int) -> dict:
+    """Render and write ``plan`` in nerfstudio-data format; returns SceneSummary's counts."""
+    views = len(plan.c2w)
+    train, test = split_indices(views)
+    train_set = set(train)
+    (output / "images").mkdir()
+    (output / "depths").mkdir()
+    rng = np.random.default_rng([seed, 303])
+    per_view = math.ceil(SEED_POINTS / len(train))
+    pts, cols, origins = [], [], []
+    for i, c2w in enumerate(plan.c2w):
+        view = render_view(plan, intr, c2w)
+        write_png(output / image_path(i), view.image)
+        np.save(output / depth_path(i), view.depth)
+        if i in train_set:
+            xyz, rgb = _seed_points(rng, view, per_view)
+            pts.append(xyz)
+            cols.append(rgb)
+            origins.append(np.broadcast_to(c2w[:3, 3], xyz.shape))
+    xyz, rgb = np.concatenate(pts), np.concatenate(cols)
+    fraction = OUTLIER_FRACTION.get(plan.preset, 0.0)
+    n_outliers = 0
+    if fraction > 0:
+        xyz, n_outliers = _add_outliers(
+            np.random.default_rng([seed, 606]), xyz, np.concatenate(origins), fraction
+        )
+    c2w_out = plan.exported_c2w()
+    write_ply(output / "sparse_pc.ply", xyz, rgb)
+    write_json(output / "transforms.json", transforms_dict(intr, c2w_out, train, test))
+    info = {
+        **common,
+        "format": "nerfstudio-data",
+        "n_train": len(train),
+        "n_test": len(test),
+        "depth": "z-depth along camera -Z, world units, float32 .npy, 0 = sky (no surface)",
+        "n_points": int(xyz.shape[0]),
+    }
+    if fraction > 0:
+        info["n_outliers"] = n_outliers
+    write_json(output / "scene.json", info)  # last: its presence means the scene is complete
+    return {"n_train": len(train), "n_test": len(test), "n_points": int(xyz.shape[0])}
+
+
+def _write_blender(output: Path, plan: ScenePlan, intr: Intrinsics, common: dict) -> dict:
+    """Render and write ``plan`` in the Blender (NeRF-synthetic) format; returns SceneSummary's counts."""
+    c2w_out = plan.exported_c2w()
+    camera_angle_x = float(np.deg2rad(plan.hfov_deg))
+    scale = np.float32(plan.export_scale)  # depth in export-frame units
+    counts = {}
+    for split, (start, stop) in plan.splits.items():
+        (output / split).mkdir()
+        (output / "depths" / split).mkdir(parents=True)
+        for k, i in enumerate(range(start, stop)):
+            view = render_view(plan, intr, plan.c2w[i])
+            write_rgba_png(output / split / f"r_{k}.png", view.rgba())
+            np.save(output / blender_depth_path(split, k), (view.depth * scale).astype(np.float32))
+        write_json(
+            output / f"transforms_{split}.json",
+            blender_transforms_dict(camera_angle_x, c2w_out[start:stop], split),
+        )
+        counts[split] = stop - start
+    write_json(
+        output / "scene.json",
+        {
+            **common,
+            "format": "blender",
+            "n_train": counts["train"],
+            "n_val": counts["val"],
+            "n_test": counts["test"],
+            "splits": {k: list(v) for k, v in plan.splits.items()},
+            "depth": "z-depth along camera -Z, world units, float32 .npy, 0 = background (no surface)",
+            "n_points": 0,
+        },
+    )
+    return {
+        "n_train": counts["train"],
+        "n_test": counts["test"],
+        "n_points": 0,
+        "dataparser": "blender-data",
+        "n_val": counts["val"],
+    }

@@ -4,7 +4,9 @@ per-pixel surface samples (for seed points).
 Pinhole camera, OpenGL convention: pixel (u, v) (column, row) with sub-pixel offset (a, b) in
 [0, 1) looks along the camera-space direction ((u + a - cx) / fl_x, -(v + b - cy) / fl_y, -1);
 the pixel centre is a = b = 0.5. Shading is view-independent: albedo * (AMBIENT + DIFFUSE *
-max(0, n . LIGHT_DIR)); rays that hit nothing see the sky.
+max(0, n . LIGHT_DIR)); rays that hit nothing see the sky (black without one), or are transparent
+in the RGBA output (:attr:`RenderedView.alpha`, :attr:`RenderedView.foreground`) of the
+Blender-format presets.
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ def shade_rays(
     Returns: colour (N, 3) in [0, 1], hit distance t (N,) (``inf`` for sky), hit points (N, 3).
     """
     hits = cast_rays(plan.geometry, origin, dirs)
-    colour = sky_colour(dirs, plan.sky)
+    colour = sky_colour(dirs, plan.sky) if plan.sky is not None else np.zeros_like(dirs)
     hit = hits.prim >= 0
     if np.any(hit):
         idx = np.nonzero(hit)[0]
@@ -96,13 +98,22 @@ class RenderedView:
     ``image`` (H, W, 3) float in [0, 1] (supersampled); ``depth`` (H, W) float32 z-depth along the
     camera's -Z axis in world units for the pixel-centre ray (0 where the ray sees sky);
     ``centre_colour`` (H, W, 3) shaded colour of the pixel-centre hit; ``centre_points`` (H, W, 3)
-    world position of the pixel-centre hit (undefined where depth is 0).
+    world position of the pixel-centre hit (undefined where depth is 0); ``alpha`` (H, W) fraction
+    of the supersampled rays that hit a surface (0 = background only, 1 = fully covered);
+    ``foreground`` (H, W, 3) mean colour of the supersampled rays that hit a surface (straight,
+    not premultiplied, alpha; 0 where alpha is 0).
     """
 
     image: np.ndarray
     depth: np.ndarray
     centre_colour: np.ndarray
     centre_points: np.ndarray
+    alpha: np.ndarray
+    foreground: np.ndarray
+
+    def rgba(self) -> np.ndarray:
+        """(H, W, 4) float RGBA in [0, 1] with straight alpha, background transparent black."""
+        return np.concatenate([self.foreground, self.alpha[..., None]], axis=-1)
 
 
 def render_view(plan: ScenePlan, intr: Intrinsics, c2w: np.ndarray, supersample: int = 2) -> RenderedView:
@@ -119,9 +130,14 @@ def render_view(plan: ScenePlan, intr: Intrinsics, c2w: np.ndarray, supersample:
     # camera-space z of an unnormalised direction is -1, so z-depth = distance / |direction|
     z = (t / norm).reshape(s1, h, w)[-1]
     depth = np.where(np.isfinite(z), z, 0.0).astype(np.float32)
+    hit = np.isfinite(t).reshape(s1, h, w)[:-1]
+    n_hit = hit.sum(axis=0)
+    fg = (colour[:-1] * hit[..., None]).sum(axis=0) / np.maximum(n_hit, 1)[..., None]
     return RenderedView(
         image=colour[:-1].mean(axis=0),
         depth=depth,
         centre_colour=colour[-1],
         centre_points=points.reshape(s1, h, w, 3)[-1],
+        alpha=n_hit / hit.shape[0],
+        foreground=fg,
     )

@@ -1,6 +1,6 @@
-"""Deterministic writers for the nerfstudio-data folder layout.
+"""Deterministic writers for the nerfstudio-data and Blender (NeRF-synthetic) folder layouts.
 
-::
+nerfstudio-data (presets ``orbit``, ``forward``, ``facing``; dataparser ``nerfstudio-data``)::
 
     OUTPUT/
       transforms.json        intrinsics, frames (poses, image + depth paths), splits, ply path
@@ -8,6 +8,16 @@
       depths/frame_00000.npy float32 (H, W) z-depth along the camera's -Z, world units, 0 = sky
       sparse_pc.ply          binary PLY seed points: float x, y, z; uchar red, green, blue
       scene.json             preset, seed, resolution, scene centre and radius, ...
+
+Blender (preset ``object``; dataparser ``blender-data``)::
+
+    OUTPUT/
+      transforms_train.json  camera_angle_x, frames: file_path "./train/r_0", transform_matrix
+      transforms_val.json    (and transforms_test.json) the same for the val and test views
+      train/r_0.png          8-bit RGBA, straight alpha, background transparent (alpha 0)
+      val/r_0.png, test/r_0.png
+      depths/train/r_0.npy   float32 (H, W) z-depth, world units, 0 = background
+      scene.json
 
 The same inputs give byte-identical files: PNGs carry no timestamps, JSON has sorted keys and
 floats rounded to a fixed number of decimals.
@@ -22,8 +32,17 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-GENERATED = ("images", "depths", "transforms.json", "sparse_pc.ply", "scene.json")
-"""Entries of the output folder that :func:`clear_generated` removes."""
+BLENDER_SPLITS = ("train", "val", "test")
+GENERATED = (
+    "images",
+    "depths",
+    "transforms.json",
+    "sparse_pc.ply",
+    "scene.json",
+    *BLENDER_SPLITS,
+    *(f"transforms_{split}.json" for split in BLENDER_SPLITS),
+)
+"""Entries of the output folder that :func:`clear_generated` removes (of any format)."""
 
 
 def image_path(i: int) -> str:
@@ -36,6 +55,16 @@ def depth_path(i: int) -> str:
     return f"depths/frame_{i:05d}.npy"
 
 
+def blender_frame_path(split: str, k: int) -> str:
+    """``file_path`` of the ``k``-th view of ``split`` in a Blender transforms file (no extension)."""
+    return f"./{split}/r_{k}"
+
+
+def blender_depth_path(split: str, k: int) -> str:
+    """Relative path of the ``k``-th ``split`` view's depth map in the Blender layout."""
+    return f"depths/{split}/r_{k}.npy"
+
+
 def to_uint8(image: np.ndarray) -> np.ndarray:
     """Float image in [0, 1] (any shape) to uint8 with rounding."""
     return np.floor(np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
@@ -45,6 +74,13 @@ def write_png(path: Path, image: np.ndarray) -> None:
     """Write an (H, W, 3) float [0, 1] or uint8 RGB image as PNG (no metadata, deterministic)."""
     arr = image if image.dtype == np.uint8 else to_uint8(image)
     Image.fromarray(np.ascontiguousarray(arr), mode="RGB").save(path, format="PNG", optimize=False)
+
+
+def write_rgba_png(path: Path, rgba: np.ndarray) -> None:
+    """Write an (H, W, 4) float [0, 1] RGBA image (straight alpha) as PNG (deterministic)."""
+    Image.fromarray(np.ascontiguousarray(to_uint8(rgba)), mode="RGBA").save(
+        path, format="PNG", optimize=False
+    )
 
 
 def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray) -> None:
@@ -140,4 +176,21 @@ def transforms_dict(
         "val_filenames": test_names,
         "test_filenames": test_names,
         "ply_file_path": "sparse_pc.ply",
+    }
+
+
+def blender_transforms_dict(camera_angle_x: float, c2w: np.ndarray, split: str) -> dict:
+    """``transforms_{split}.json`` content: ``camera_angle_x`` (radians) and one frame per pose of
+    ``c2w`` (V, 4, 4), OpenGL camera-to-world, with its image (``file_path``, no extension, as in
+    NeRF-synthetic) and depth map (``depth_file_path``, ignored by nerfstudio's Blender parser)."""
+    return {
+        "camera_angle_x": camera_angle_x,
+        "frames": [
+            {
+                "file_path": blender_frame_path(split, k),
+                "depth_file_path": blender_depth_path(split, k),
+                "transform_matrix": m,
+            }
+            for k, m in enumerate(c2w)
+        ],
     }

@@ -1,0 +1,97 @@
+"""How many innocent training cameras see a 3D point: the cost of the view-aware placement.
+
+The paper places each poison Gaussian at the least dense point of its illusion ray, on the
+intuition that low density means "weakly constrained by the other views". On a capture whose
+cameras all look the same way (LLFF-like, forward walks) an empty point in front of the surface
+is nevertheless seen by almost every innocent view, and training removes it. The view-aware
+placement makes the intuition explicit: for every candidate sample it counts the innocent
+training cameras that would see the point -- inside their image, in front of their near plane
+and not behind the surface their current render shows -- and takes the sample seen by the
+fewest (the KDE density breaks ties, see :mod:`stealth_ns.attack.ray_search`).
+
+Conventions: ``viewmats`` are world-to-camera ``[J, 4, 4]`` in OpenCV convention (camera looks
+down +Z, +Y down; gsplat's), ``Ks`` ``[J, 3, 3]`` pixel intrinsics with pixel centres at
+``+0.5``; ``depths`` are rendered z-depths (scene units) and ``alphas`` rendered opacities, both
+``[H, W]`` per camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+#: Rendered opacity below which a pixel shows no surface: nothing there occludes a point.
+SURFACE_ALPHA = 0.5
+
+
+@dataclass(frozen=True)
+class CameraDepths:
+    """Innocent training cameras with the current model's rendered depth and opacity.
+
+    Attributes:
+        viewmats: ``[J, 4, 4]`` world-to-camera (OpenCV convention).
+        Ks: ``[J, 3, 3]`` intrinsics in pixels.
+        depths: ``J`` tensors ``[H_j, W_j]``, rendered z-depth (scene units).
+        alphas: ``J`` tensors ``[H_j, W_j]``, rendered opacity in [0, 1].
+    """
+
+    viewmats: Tensor
+    Ks: Tensor
+    depths: list[Tensor]
+    alphas: list[Tensor]
+
+    def __post_init__(self) -> None:
+        j = self.viewmats.shape[0]
+        if self.viewmats.shape != (j, 4, 4) or self.Ks.shape != (j, 3, 3):
+            raise ValueError(f"viewmats must be [J, 4, 4] and Ks [J, 3, 3], got "
+                             f"{tuple(self.viewmats.shape)} and {tuple(self.Ks.shape)}")  # fmt: skip
+        if len(self.depths) != j or len(self.alphas) != j:
+            raise ValueError(f"need one depth and one opacity map per camera ({j})")
+
+    def __len__(self) -> int:
+        return self.viewmats.shape[0]
+
+
+def count_seeing_cameras(
+    points: Tensor, cameras: CameraDepths, margin: float = 0.05, near: float = 0.01
+) -> Tensor:
+    """Number of cameras that see each point.
+
+    A camera sees a point when its camera-space ``z > near``, it projects inside the image, and
+    it is not behind the rendered surface there: ``z <= depth * (1 + margin)`` wherever the
+    rendered opacity is at least :data:`SURFACE_ALPHA` (a pixel showing no surface occludes
+    nothing). A point on the surface a camera shows therefore counts as seen.
+
+    Args:
+        points: ``[..., 3]`` world points (scene units).
+        cameras: the cameras and their rendered depth.
+        margin: relative depth tolerance (0.05 = 5% behind the surface still counts as seen).
+        near: near plane in scene units.
+
+    Returns:
+        ``[...]`` int32 counts in ``[0, J]``.
+    """
+    shape = points.shape[:-1]
+    pts = points.reshape(-1, 3).float()
+    counts = torch.zeros(pts.shape[0], dtype=torch.int32, device=pts.device)
+    homog = torch.cat([pts, torch.ones_like(pts[:, :1])], dim=-1)
+    for j in range(len(cameras)):
+        cam = homog @ cameras.viewmats[j].to(pts).T  # [P, 4]
+        z = cam[:, 2]
+        front = z > near
+        zs = torch.where(front, z, torch.ones_like(z))
+        K = cameras.Ks[j].to(pts)
+        u = K[0, 0] * cam[:, 0] / zs + K[0, 2]
+        v = K[1, 1] * cam[:, 1] / zs + K[1, 2]
+        depth, alpha = cameras.depths[j].to(pts.device), cameras.alphas[j].to(pts.device)
+        h, w = depth.shape
+        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        col = u.clamp(0, w - 1).long()
+        row = v.clamp(0, h - 1).long()
+        surface = depth[row, col].float()
+        shows_surface = alpha[row, col] >= SURFACE_ALPHA
+        unoccluded = ~shows_surface | (z <= surface * (1.0 + margin))
+        counts += (inside & unoccluded).to(torch.int32)
+    return counts.reshape(shape)

@@ -1,0 +1,110 @@
+"""Where poison goes: camera visibility counts, the view-aware ray search, the scale-free t_min,
+and the refusal to place poison by the density of a random cloud."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from attack_helpers import build_pipeline
+
+from stealth_ns.attack.config import AttackConfig
+from stealth_ns.attack.density import DensityGrid
+from stealth_ns.attack.injection import near_bound
+from stealth_ns.attack.ray_search import min_density_points
+from stealth_ns.attack.visibility import CameraDepths, count_seeing_cameras
+
+
+def _camera(eye: tuple[float, float, float], depth: float, alpha: float = 1.0, size: int = 20):
+    """An OpenCV camera at ``eye`` looking down +Z (focal 10 px, centre pixel), flat depth map."""
+    viewmat = torch.eye(4)
+    viewmat[:3, 3] = -torch.tensor(eye)
+    K = torch.tensor([[10.0, 0.0, size / 2], [0.0, 10.0, size / 2], [0.0, 0.0, 1.0]])
+    return viewmat, K, torch.full((size, size), depth), torch.full((size, size), alpha)
+
+
+def _cameras(*cams) -> CameraDepths:
+    return CameraDepths(
+        viewmats=torch.stack([c[0] for c in cams]),
+        Ks=torch.stack([c[1] for c in cams]),
+        depths=[c[2] for c in cams],
+        alphas=[c[3] for c in cams],
+    )
+
+
+def test_count_seeing_cameras_frustum_occlusion_and_empty_pixels():
+    cams = _cameras(
+        _camera((0.0, 0.0, 0.0), depth=5.0),  # surface at z = 5
+        _camera((0.0, 0.0, 0.0), depth=5.0, alpha=0.0),  # shows no surface: occludes nothing
+        _camera((3.0, 0.0, 0.0), depth=100.0),  # 3 units to the side, 90° fov
+    )
+    pts = torch.tensor(
+        [
+            [0.0, 0.0, 2.0],  # in front of the surface: cams 0, 1; cam 2 sees x' = -3 at z 2 -> outside
+            [0.0, 0.0, 5.2],  # 4% behind the surface: within the 5% margin, seen by cam 0 (and 1, 2)
+            [0.0, 0.0, 6.0],  # 20% behind the surface: hidden from cam 0 only (1, 2 see it)
+            [0.0, 0.0, -1.0],  # behind every camera
+            [2.5, 0.0, 4.0],  # cams 0, 1, 2
+        ]
+    )
+    counts = count_seeing_cameras(pts, cams, margin=0.05)
+    assert counts.tolist() == [2, 3, 2, 0, 3]
+    assert count_seeing_cameras(pts[None], cams).shape == (1, 5)
+
+
+def test_view_aware_search_prefers_unseen_samples_density_breaks_ties():
+    # a ray along +Z from the origin; empty grid (density 0 everywhere), so the KDE alone cannot choose
+    grid = DensityGrid(np.zeros((4, 4, 40), np.float32), origin=np.array([-0.5, -0.5, 0.0]), voxel_size=0.25)
+    o, d = torch.zeros(1, 3), torch.tensor([[0.0, 0.0, 1.0]])
+    kde_only = min_density_points(grid, o, d, 0.5, 9.5, n_samples=91, tie_break="nearest-surface")
+    assert float(kde_only.t[0]) == pytest.approx(9.5)  # every sample ties: the surface end
+
+    def penalty(pts: torch.Tensor) -> torch.Tensor:  # 5 cameras see z < 3, none between 3 and 4, 1 beyond
+        z = pts[..., 2]
+        return torch.where(z < 3.0, 5, torch.where(z <= 4.0, 0, 1))
+
+    va = min_density_points(grid, o, d, 0.5, 9.5, n_samples=91, tie_break="nearest-surface", penalty=penalty)
+    assert 3.0 <= float(va.t[0]) <= 4.0 and float(va.t[0]) == pytest.approx(4.0)
+    assert float(va.penalty[0]) == 0
+    # with a density bump in the unseen stretch, the emptier part of it wins
+    values = np.zeros((4, 4, 40), np.float32)
+    values[:, :, 15:17] = 1.0  # z in [3.75, 4.25)
+    va2 = min_density_points(
+        grid.with_values(values), o, d, 0.5, 9.5, n_samples=91, tie_break="nearest-surface", penalty=penalty
+    )
+    assert float(va2.t[0]) == pytest.approx(3.7)
+    assert math.isnan(float(kde_only.penalty[0])) is False and float(kde_only.penalty[0]) == 0
+
+
+def test_near_bound_is_a_fraction_of_the_median_surface_depth():
+    depth = torch.tensor([[1.0, 2.0, 3.0], [4.0, 100.0, 100.0]])
+    alpha = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.0, 0.0]])  # the 100s show no surface
+    cfg = AttackConfig(t_min_fraction=0.1)
+    assert near_bound(depth, alpha, cfg, fallback=50.0) == pytest.approx(0.1 * 2.0)  # lower median of 1..4
+    assert near_bound(depth, torch.zeros_like(alpha), cfg, fallback=50.0) == pytest.approx(5.0)
+    assert near_bound(depth, alpha, AttackConfig(t_min=0.3), fallback=50.0) == 0.3
+    # scale-free: the same capture scaled by 10 gets a 10x bound
+    assert near_bound(depth * 10, alpha, cfg, fallback=1.0) == pytest.approx(
+        10 * near_bound(depth, alpha, cfg, 1.0)
+    )
+
+
+def test_random_init_is_refused_with_what_to_run(tiny_orbit_scene):
+    with pytest.raises(SystemExit, match="stealth-ns seed-points --data"):
+        build_pipeline(tiny_orbit_scene, AttackConfig(), random_init=True)
+    # without the density-guided component there is nothing to place: allowed
+    build_pipeline(tiny_orbit_scene, AttackConfig(density_guided=False), random_init=True)
+
+
+def test_dataset_without_seed_points_is_refused(tiny_orbit_scene, tmp_path):
+    scene = tmp_path / "no_points"
+    scene.mkdir()
+    (scene / "images").symlink_to(tiny_orbit_scene / "images")
+    meta = json.loads((tiny_orbit_scene / "transforms.json").read_text())
+    meta.pop("ply_file_path")
+    (scene / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(SystemExit, match="no seed points"):
+        build_pipeline(scene, AttackConfig())
