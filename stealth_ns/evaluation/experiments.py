@@ -26,7 +26,6 @@ import datetime as _dt
 import hashlib
 import json
 import os
-import platform
 import re
 import subprocess
 import sys
@@ -65,6 +64,7 @@ from stealth_ns.method_configs.attack_experiments import (
     get_table,
     scene_kind,
 )
+from stealth_ns.provenance import software_and_hardware
 
 DEFAULT_OUTPUT = Path("bench-attack-output")
 #: Methods with the attack pipeline (``--pipeline.attack.*``).
@@ -771,17 +771,6 @@ def _git_commit() -> str | None:
 
 def environment(plan: Plan, started: float) -> dict[str, Any]:
     """Method, iterations, seed, date, versions and hardware of this benchmark."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    import torch
-
-    def _version(name: str) -> str | None:
-        try:
-            return version(name)
-        except PackageNotFoundError:
-            return None
-
-    cuda = torch.cuda.is_available()
     return {
         "method": plan.method,
         "iterations": plan.iterations,
@@ -790,17 +779,7 @@ def environment(plan: Plan, started: float) -> dict[str, Any]:
         "attack_noise_seed": plan.seed,
         "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
         "wall_seconds": round(time.time() - started, 1),
-        "device": torch.cuda.get_device_name(0) if cuda else "cpu",
-        "cpu_count": os.cpu_count(),
-        "torch_threads": torch.get_num_threads(),
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-        "torch": torch.__version__,
-        "nerfstudio": _version("nerfstudio"),
-        "gsplat": _version("gsplat"),
-        "numpy": _version("numpy"),
-        "pycolmap": _version("pycolmap"),
-        "stealth_ns": _version("stealth-ns"),
+        **software_and_hardware(),
         "git_commit": _git_commit(),
     }
 

@@ -30,6 +30,7 @@ from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation.runs import json_safe
 from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr
 from stealth_ns.pipeline import rgb_float
+from stealth_ns.provenance import software_and_hardware
 
 #: (V-illusory PSNR above, V-test drop at most) pairs: the paper's rule first, then its appendix's.
 SUCCESS_THRESHOLDS: tuple[tuple[float, float], ...] = ((25.0, 3.0), (25.0, 8.0), (20.0, 9.0), (15.0, 10.0))
@@ -358,6 +359,7 @@ def write_report(poisoned_config: Path, clean_config: Path, output: Path) -> dic
     _plot_neighbour_curve(output / "neighbour_curve.png", curve)
 
     report["neighbour_views"] = curve
+    report["environment"] = software_and_hardware()
     report["heldout_strip"] = strip
     report["images"] = {
         "poisoned_views": view_files,
