@@ -111,21 +111,23 @@ def check_seed_points(model: StealthSplatModel, datamanager: StealthDataManager)
     """Stop unless the model starts from seed points: the density-guided placement reads the
     density of the point cloud, and that of a random initialisation is noise."""
     points = model.seed_points[0] if model.seed_points is not None else None
-    if model.config.random_init or points is None or points.shape[0] == 0:
-        data = datamanager.config.dataparser.data
+    if model.config.random_init:
+        why = "--pipeline.model.random-init is on"
+    elif points is None:
         why = (
-            "--pipeline.model.random-init is on"
-            if model.config.random_init
-            else "the dataset has no seed points (no ply_file_path in transforms.json, no COLMAP points, "
+            "the dataset has no seed points (no ply_file_path in transforms.json, no COLMAP points, "
             "or a Blender dataset)"
-            if points is None
-            else "the seed-point file is empty"
         )
-        fail(
-            f"the density-guided injection places poison by the density of the seed points, but {why}. "
-            f"Triangulate them from the known poses with `stealth-ns seed-points --data {data}` and train "
-            "on the dataset it prints, or turn the component off with --pipeline.attack.density-guided False"
-        )
+    elif points.shape[0] == 0:
+        why = "the seed-point file is empty"
+    else:
+        return
+    data = datamanager.config.dataparser.data
+    fail(
+        f"the density-guided injection places poison by the density of the seed points, but {why}. "
+        f"Triangulate them from the known poses with `stealth-ns seed-points --data {data}` and train "
+        "on the dataset it prints, or turn the component off with --pipeline.attack.density-guided False"
+    )
 
 
 def rgb_float(image: torch.Tensor) -> torch.Tensor:

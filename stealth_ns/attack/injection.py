@@ -52,9 +52,8 @@ class PoisonPlacement:
     per_view: dict[str, int] = field(default_factory=dict)  # view name -> Gaussians placed
     invalid_rays: dict[str, int] = field(default_factory=dict)  # view name -> rays with t_max < t_min
     t_min: dict[str, float] = field(default_factory=dict)  # view name -> near bound used (scene units)
-    seen_by: dict[str, float] = field(
-        default_factory=dict
-    )  # view name -> mean innocent cameras seeing a poison
+    # view name -> mean number of innocent cameras that see a placed poison Gaussian (view-aware)
+    seen_by: dict[str, float] = field(default_factory=dict)
     grid: DensityGrid | None = None
     kde: DensityGrid | None = None
     timings: dict[str, float] = field(default_factory=dict)
