@@ -91,6 +91,8 @@ class StealthSplatModelConfig(SplatfactoModelConfig):
 
 
 POISON_TAG = "poison"
+#: Camera-space z (scene units) below which a Gaussian is not drawn (splatfacto's near plane).
+NEAR_PLANE = 0.01
 """Name of the per-Gaussian tag (1.0 = poison, 0.0 = scene) kept in ``gauss_params``: gsplat's
 strategy duplicates, splits and prunes it with the other rows, and it is saved in checkpoints."""
 
@@ -394,7 +396,7 @@ class StealthSplatModel(SplatfactoModel):
             width=W,
             height=H,
             packed=False,
-            near_plane=0.01,
+            near_plane=NEAR_PLANE,
             far_plane=1e10,
             render_mode=render_mode,
             sh_degree=sh_degree,

@@ -39,7 +39,7 @@ from stealth_ns.attack.visibility import CameraDepths
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager
 from stealth_ns.errors import StealthNSError
 from stealth_ns.metrics import illusion_metrics, psnr
-from stealth_ns.model import POISON_TAG, StealthSplatModel, viewmat_from_c2w
+from stealth_ns.model import NEAR_PLANE, POISON_TAG, StealthSplatModel, viewmat_from_c2w
 from stealth_ns.viewer_panel import StealthAttackPanel
 
 
@@ -267,7 +267,9 @@ class StealthPipeline(VanillaPipeline):
         innocent = self.innocent_cameras() if cfg.placement == "view-aware" else None
         means = model.means.detach().cpu().numpy()
         opacities = torch.sigmoid(model.opacities.detach()).squeeze(-1).cpu().numpy()
-        placement = place_poison(means, opacities, self.poison_views, depths, alphas, cfg, innocent)
+        placement = place_poison(
+            means, opacities, self.poison_views, depths, alphas, cfg, innocent, near_plane=NEAR_PLANE
+        )
         n_new = placement.means.shape[0]
         if n_new == 0:
             fail(
@@ -299,7 +301,9 @@ class StealthPipeline(VanillaPipeline):
                 "poison_per_view": placement.per_view,
                 "invalid_rays_per_view": placement.invalid_rays,
                 "t_min_per_view": placement.t_min,
+                "t_min_unseen_per_view": placement.t_min_unseen,
                 "innocent_views_seeing_poison": placement.seen_by,
+                "poison_unseen_fraction": placement.unseen_fraction,
                 "density_grid": {
                     "shape": list(placement.grid.shape),
                     "voxel_size": placement.grid.voxel_size,

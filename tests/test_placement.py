@@ -13,9 +13,10 @@ from attack_helpers import build_pipeline
 
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid
-from stealth_ns.attack.injection import near_bound
+from stealth_ns.attack.injection import PoisonView, median_scene_depth, place_poison
 from stealth_ns.attack.ray_search import min_density_points
 from stealth_ns.attack.visibility import CameraDepths, count_seeing_cameras
+from stealth_ns.model import viewmat_from_c2w
 
 
 def _camera(eye: tuple[float, float, float], depth: float, alpha: float = 1.0, size: int = 20):
@@ -79,17 +80,78 @@ def test_view_aware_search_prefers_unseen_samples_density_breaks_ties():
     assert math.isnan(float(kde_only.penalty[0])) is False and float(kde_only.penalty[0]) == 0
 
 
-def test_near_bound_is_a_fraction_of_the_median_surface_depth():
+def test_median_scene_depth_is_scale_free():
     depth = torch.tensor([[1.0, 2.0, 3.0], [4.0, 100.0, 100.0]])
     alpha = torch.tensor([[1.0, 1.0, 1.0], [1.0, 0.0, 0.0]])  # the 100s show no surface
-    cfg = AttackConfig(t_min_fraction=0.1)
-    assert near_bound(depth, alpha, cfg, fallback=50.0) == pytest.approx(0.1 * 2.0)  # lower median of 1..4
-    assert near_bound(depth, torch.zeros_like(alpha), cfg, fallback=50.0) == pytest.approx(5.0)
-    assert near_bound(depth, alpha, AttackConfig(t_min=0.3), fallback=50.0) == 0.3
-    # scale-free: the same capture scaled by 10 gets a 10x bound
-    assert near_bound(depth * 10, alpha, cfg, fallback=1.0) == pytest.approx(
-        10 * near_bound(depth, alpha, cfg, 1.0)
+    assert median_scene_depth(depth, alpha, fallback=50.0) == pytest.approx(2.0)  # lower median of 1..4
+    assert median_scene_depth(depth, torch.zeros_like(alpha), fallback=50.0) == 50.0
+    assert median_scene_depth(depth * 10, alpha, fallback=1.0) == pytest.approx(20.0)
+
+
+def _opengl_c2w(eye: tuple[float, float, float], looking_back: bool = False) -> torch.Tensor:
+    """[3, 4] OpenGL camera at ``eye`` looking down world -Z (or +Z with ``looking_back``)."""
+    c2w = torch.zeros(3, 4)
+    c2w[:3, :3] = torch.diag(torch.tensor([-1.0, 1.0, -1.0])) if looking_back else torch.eye(3)
+    c2w[:, 3] = torch.tensor(eye)
+    return c2w
+
+
+def _place(innocent_eye, looking_back=False, innocent_alpha=1.0, near_plane=0.0):
+    """One illusion pixel at the centre of a camera at the origin looking at a wall at z = -5
+    (median depth 5: t_min 0.375, unseen bound 0.05), one innocent camera (90° field of view)."""
+    size = 20
+    mask = torch.zeros(size, size, dtype=torch.bool)
+    mask[size // 2, size // 2] = True
+    view = PoisonView(
+        0,
+        "poisoned",
+        _opengl_c2w((0.0, 0.0, 0.0)),
+        10.0,
+        10.0,
+        size / 2,
+        size / 2,
+        mask,
+        torch.full((size, size, 3), 0.5),
     )
+    c2w = _opengl_c2w(innocent_eye, looking_back)
+    innocent = CameraDepths(
+        viewmats=viewmat_from_c2w(c2w[None]),
+        Ks=torch.tensor([[[10.0, 0.0, size / 2], [0.0, 10.0, size / 2], [0.0, 0.0, 1.0]]]),
+        depths=[torch.full((size, size), 5.0)],
+        alphas=[torch.full((size, size), innocent_alpha)],
+    )
+    rng = np.random.default_rng(0)
+    wall = np.c_[rng.uniform(-3, 3, (400, 2)), np.full(400, -5.0)]
+    cfg = AttackConfig(outlier_removal=False, samples_per_ray=2000)
+    depth, alpha = torch.full((size, size), 5.0), torch.ones(size, size)
+    return place_poison(wall, np.ones(400), [view], [depth], [alpha], cfg, innocent, near_plane=near_plane)
+
+
+def test_view_aware_takes_the_unseen_stretch_in_front_of_the_camera():
+    # forward-facing: the innocent camera 0.2 to the side sees the ray only beyond z = 0.2
+    out = _place((0.2, 0.0, 0.0))
+    z = -float(out.means[0, 2])
+    assert 0.05 <= z < 0.2
+    assert out.seen_by["poisoned"] == 0 and out.unseen_fraction["poisoned"] == 1.0
+    assert out.t_min["poisoned"] == pytest.approx(0.375) and out.t_min_unseen["poisoned"] == pytest.approx(
+        0.05
+    )
+    # the poison Gaussian stays one pixel footprint wide at its depth
+    assert float(out.scales[0]) == pytest.approx(0.5 * z / 10.0, rel=1e-3)
+
+
+def test_view_aware_falls_back_to_the_paper_range_when_every_point_is_seen():
+    # 360°-like: a camera behind the wall looking back through empty space sees the whole ray
+    out = _place((0.0, 0.0, -10.0), looking_back=True, innocent_alpha=0.0)
+    assert -float(out.means[0, 2]) >= 0.375
+    assert out.seen_by["poisoned"] == 1 and out.unseen_fraction["poisoned"] == 0.0
+
+
+def test_view_aware_keeps_poison_beyond_the_near_plane():
+    # the unseen stretch z < 0.2 lies inside 2 near planes (0.2): the paper's range is used instead
+    out = _place((0.2, 0.0, 0.0), near_plane=0.1)
+    assert -float(out.means[0, 2]) >= 0.375
+    assert out.unseen_fraction["poisoned"] == 0.0
 
 
 def test_random_init_is_refused_with_what_to_run(tiny_orbit_scene):

@@ -63,22 +63,30 @@ class AttackConfig(PrintableConfig):
     """Statistical outlier removal (20 neighbours, 2 std) before the AABB, as the authors did."""
     placement: Literal["view-aware", "kde"] = "view-aware"
     """Where on its illusion ray a poison Gaussian goes. ``kde``: the paper's arg-min of the KDE
-    density (eq. 4). ``view-aware``: the sample seen by the fewest innocent training cameras
-    (inside their image and not behind the surface their render shows), the KDE density breaking
-    ties -- the paper's "low density = weakly constrained" made explicit. Measured (placement
-    table in ``docs/attack.md``, 3000 lite iterations): on the forward-facing ``facing`` scene
-    ``kde`` keeps 0 of 815 poison Gaussians (9.75 dB); view-aware with t_min_fraction 0.01
-    succeeds there (44.95 dB) and on the real ``fox`` capture (38.10 dB); orbit 31.33 dB."""
+    density (eq. 4) between ``t_min_fraction`` and the surface. ``view-aware``: first the part of
+    the ray no innocent training camera sees (outside every innocent image, or behind the surface
+    its render shows), from ``unseen_t_min_fraction`` on, the KDE density breaking ties; a ray
+    without such a part falls back to the paper's range (``t_min_fraction`` on), the fewest
+    seeing cameras first. The paper's "low density = weakly constrained" made explicit. Measured
+    (placement table in ``docs/attack.md``, 3000 lite iterations): ``kde`` keeps 0 of 815 poison
+    Gaussians on the forward-facing ``facing`` scene (9.75 dB); ``view-aware`` succeeds on
+    ``orbit``, ``forward``, ``facing`` and the real ``fox`` capture."""
     visibility_margin: float = 0.05
     """``view-aware``: a point up to this fraction of the rendered depth behind a camera's surface
     still counts as seen by that camera."""
     t_min_fraction: float = 0.075
-    """Nearest distance along a ray where a poison Gaussian may go, as a fraction of the poisoned
-    view's median rendered depth (scale-free). 0.075 reproduces the orbit-tuned absolute 0.075
-    (t_min 0.072 there) and orbit needs it (view-aware: 0.075 -> 31.33 dB, 0.01 -> 23.56 dB).
-    Forward-facing / hand-held captures need 0.01 (facing: 0.075 -> 10.11 dB, 0.01 -> 44.95 dB;
-    fox: 0.01 -> 38.10 dB): there the only place no innocent camera sees is just in front of
-    the poisoned camera."""
+    """Nearest distance along a ray where a poison Gaussian that innocent cameras will see may go
+    (every ``kde`` placement, and ``view-aware`` rays that no unseen part), as a fraction of the
+    poisoned view's median rendered depth (scale-free). 0.075 reproduces the orbit-tuned absolute
+    0.075 (t_min 0.072 there). Nearer, seen poison is a floater that training removes: on
+    ``orbit`` (every ray seen by ~15 innocent views) 0.075 -> 31.33 dB, 0.01 -> 23.56 dB."""
+    unseen_t_min_fraction: float = 0.01
+    """``view-aware``: the nearest distance (fraction of the median rendered depth) for a poison
+    Gaussian that no innocent camera sees. On forward-facing captures the only such place is the
+    stretch just in front of the poisoned camera, before the other frusta overlap: ``facing``
+    0.075 -> 10.11 dB (seen by 6.2 innocent views on average), 0.01 -> 44.95 dB (seen by none);
+    ``fox`` 0.01 -> 38.10 dB. Never nearer than twice the rasterizer's near plane, where a
+    Gaussian is no longer drawn."""
     t_min: float | None = None
     """Absolute near distance in nerfstudio's rescaled scene units; overrides ``t_min_fraction``
     (the paper's 0.3 is in Mip-NeRF 360's COLMAP units, ~4x ours)."""

@@ -2,9 +2,10 @@
 
 ``place_poison`` turns the current Gaussians plus the poisoned views into new Gaussians:
 opacity-weighted voxel density -> KDE -> for every illusion pixel, the best point on its ray
-between ``t_min`` and the rendered depth: the least dense one (``placement="kde"``, the paper)
-or the one seen by the fewest innocent training cameras, the density breaking ties
-(``placement="view-aware"``, :mod:`stealth_ns.attack.visibility`). ``append_gaussians`` then
+up to the rendered depth: the least dense one from ``t_min`` on (``placement="kde"``, the
+paper), or (``placement="view-aware"``, :mod:`stealth_ns.attack.visibility`) the least dense
+point no innocent training camera sees from the nearer ``t_min_unseen`` on, and on rays
+without one the paper's range with the fewest seeing cameras first. ``append_gaussians`` then
 grows the model's parameters, their Adam state and gsplat's densification state together.
 """
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import torch
@@ -52,6 +54,10 @@ class PoisonPlacement:
     per_view: dict[str, int] = field(default_factory=dict)  # view name -> Gaussians placed
     invalid_rays: dict[str, int] = field(default_factory=dict)  # view name -> rays with t_max < t_min
     t_min: dict[str, float] = field(default_factory=dict)  # view name -> near bound used (scene units)
+    # view-aware: view name -> near bound for poison no innocent camera sees (scene units)
+    t_min_unseen: dict[str, float] = field(default_factory=dict)
+    # view-aware: view name -> fraction of its poison Gaussians that no innocent camera sees
+    unseen_fraction: dict[str, float] = field(default_factory=dict)
     # view name -> mean number of innocent cameras that see a placed poison Gaussian (view-aware)
     seen_by: dict[str, float] = field(default_factory=dict)
     grid: DensityGrid | None = None
@@ -92,15 +98,11 @@ def build_density(
     return grid, gaussian_kde_grid(grid, cfg.bandwidth)
 
 
-def near_bound(depth: Tensor, alpha: Tensor, cfg: AttackConfig, fallback: float) -> float:
-    """``t_min`` of one poisoned view in scene units: ``cfg.t_min`` if set, else
-    ``cfg.t_min_fraction`` x the median rendered z-depth of the pixels that show a surface
-    (``fallback``, e.g. the distance to the density grid's centre, when none does)."""
-    if cfg.t_min is not None:
-        return float(cfg.t_min)
+def median_scene_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
+    """Median rendered z-depth (scene units) of the pixels that show a surface (``fallback``,
+    e.g. the distance to the density grid's centre, when none does)."""
     surface = depth[(alpha >= SURFACE_ALPHA) & torch.isfinite(depth) & (depth > 0)]
-    scene_depth = float(surface.median()) if surface.numel() else fallback
-    return cfg.t_min_fraction * scene_depth
+    return float(surface.median()) if surface.numel() else fallback
 
 
 def place_poison(
@@ -111,6 +113,7 @@ def place_poison(
     alphas: list[Tensor],
     cfg: AttackConfig,
     innocent: CameraDepths | None = None,
+    near_plane: float = 0.0,
 ) -> PoisonPlacement:
     """Poison Gaussians for every illusion pixel of every poisoned view.
 
@@ -122,6 +125,8 @@ def place_poison(
         cfg: the attack config (KDE, placement, t_min, samples, tie-break, poison scale).
         innocent: the innocent training cameras with their rendered depth; required by
             ``placement="view-aware"``.
+        near_plane: the rasterizer's near plane (camera-space z, scene units); view-aware
+            poison stays at least twice as far, where it is still drawn.
     """
     if cfg.placement == "view-aware" and innocent is None:
         raise ValueError("view-aware placement needs the innocent cameras' rendered depth")
@@ -138,6 +143,8 @@ def place_poison(
     upper = torch.as_tensor(grid.upper, dtype=torch.float32)
     out_means, out_colors, out_scales = [], [], []
     per_view, invalid, near, seen = {}, {}, {}, {}
+    near_unseen: dict[str, float] = {}
+    unseen_share: dict[str, float] = {}
     centre = torch.as_tensor((grid.origin + grid.upper) / 2, dtype=torch.float32)
     t1 = time.perf_counter()
     for view, depth, alpha in zip(views, depths, alphas, strict=True):
@@ -150,17 +157,28 @@ def place_poison(
         t_surface = torch.as_tensor(zdepth_to_ray_t(depth[rows, cols].float(), cos))
         t_exit = ray_exit_distance(origins, dirs, lower, upper)
         t_max = torch.where(alpha[rows, cols] >= SURFACE_ALPHA, t_surface, t_exit)
-        t_min = near_bound(depth, alpha, cfg, fallback=float(torch.linalg.norm(centre - view.c2w[:3, 3])))
-        found = min_density_points(
+        scene_depth = median_scene_depth(
+            depth, alpha, fallback=float(torch.linalg.norm(centre - view.c2w[:3, 3]))
+        )
+        t_min = float(cfg.t_min) if cfg.t_min is not None else cfg.t_min_fraction * scene_depth
+        search = partial(
+            min_density_points,
             kde,
             origins,
             dirs,
-            t_min,
-            t_max,
+            t_max=t_max,
             n_samples=cfg.samples_per_ray,
             tie_break=cfg.tie_break,
             penalty=penalty,
         )
+        found = search(t_min)
+        if penalty is not None:
+            t_unseen = min(t_min, cfg.unseen_t_min_fraction * scene_depth)
+            near_unseen[view.name] = t_unseen
+            # per ray: never nearer than 2 near planes in camera z (t = z / cos_theta)
+            unseen = search(torch.clamp(2.0 * near_plane / cos, min=t_unseen))
+            use = torch.as_tensor(unseen.valid) & (torch.as_tensor(unseen.penalty) == 0)
+            found = found.where(use, unseen)
         valid = torch.as_tensor(found.valid)
         pts = torch.as_tensor(found.points)[valid]
         t = torch.as_tensor(found.t)[valid]
@@ -172,7 +190,9 @@ def place_poison(
         invalid[view.name] = int((~valid).sum())
         near[view.name] = t_min
         if penalty is not None and bool(valid.any()):
-            seen[view.name] = float(torch.as_tensor(found.penalty)[valid].mean())
+            pen = torch.as_tensor(found.penalty)[valid]
+            seen[view.name] = float(pen.mean())
+            unseen_share[view.name] = float((pen == 0).float().mean())
     timings["ray_search_s"] = time.perf_counter() - t1
     return PoisonPlacement(
         means=torch.cat(out_means) if out_means else torch.zeros(0, 3),
@@ -181,6 +201,8 @@ def place_poison(
         per_view=per_view,
         invalid_rays=invalid,
         t_min=near,
+        t_min_unseen=near_unseen,
+        unseen_fraction=unseen_share,
         seen_by=seen,
         grid=grid,
         kde=kde,

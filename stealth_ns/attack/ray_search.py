@@ -74,6 +74,19 @@ class RaySearchResult(Generic[ArrayT]):
     valid: ArrayT
     penalty: ArrayT
 
+    def where(self, mask: ArrayT, other: RaySearchResult[ArrayT]) -> RaySearchResult[ArrayT]:
+        """Per ray, ``other``'s result where ``mask`` ([M] bool) is set, this one's elsewhere."""
+        lib = torch if isinstance(self.t, torch.Tensor) else np
+        fields = ("points", "t", "density", "valid", "penalty")
+        return RaySearchResult(
+            *(
+                lib.where(
+                    mask[:, None] if name == "points" else mask, getattr(other, name), getattr(self, name)
+                )
+                for name in fields
+            )
+        )
+
 
 def _to_torch(x, dtype=torch.float64, device=None) -> torch.Tensor:
     if isinstance(x, torch.Tensor):
