@@ -15,6 +15,8 @@ training runs on the CPU the cache simply stays in ordinary memory.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -30,6 +32,19 @@ from torch import Tensor
 from stealth_ns.attack.noise_schedule import NoiseDecay, noise_sigma, noisy_image
 
 
+def dataset_image_names(data: Path, paths: Sequence[Path]) -> list[str]:
+    """Image paths as users name views: relative to the dataset folder (``data``, a folder or its
+    transforms file); images that live elsewhere (a seeded copy referring to a read-only
+    dataset) relative to the parent of their common folder, e.g. ``images/0042.png``."""
+    base = Path(os.path.normpath(data if data.is_dir() else data.parent))
+    normal = [Path(os.path.normpath(p if p.is_absolute() else base / p)) for p in paths]
+    if all(p.is_relative_to(base) for p in normal):
+        return [str(p.relative_to(base)) for p in normal]
+    folder = Path(os.path.commonpath([q.parent for q in normal]))
+    root = folder.parent
+    return [str(p.relative_to(root)) for p in normal]
+
+
 @dataclass(frozen=True)
 class NoiseSpec:
     """View-consistency-disruption noise: sigma0 (0-255 scale) decaying over total_steps."""
@@ -38,6 +53,23 @@ class NoiseSpec:
     decay: NoiseDecay
     total_steps: int
     seed: int
+
+
+def check_nerfstudio_data(config: FullImageDatamanagerConfig | None) -> None:
+    """Stop with one line (file and frame) if a nerfstudio-data dataset is broken, before
+    nerfstudio's parser meets the problem as a traceback (:mod:`stealth_ns.dataset_check`)."""
+    from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
+
+    from stealth_ns.dataset_check import check_dataset
+    from stealth_ns.errors import StealthNSError
+
+    dataparser = getattr(config, "dataparser", None)
+    if not isinstance(dataparser, NerfstudioDataParserConfig) or dataparser.data is None:
+        return
+    try:
+        check_dataset(Path(dataparser.data), downscale_factor=dataparser.downscale_factor)
+    except StealthNSError as err:
+        raise SystemExit(f"stealth-ns: error: {err}") from None
 
 
 @dataclass
@@ -53,6 +85,9 @@ class StealthDataManager(FullImageDatamanager):
     config: StealthDataManagerConfig
 
     def __init__(self, *args, **kwargs) -> None:
+        config = kwargs.get("config", args[0] if args else None)
+        if kwargs.get("test_mode", args[2] if len(args) > 2 else "val") != "inference":
+            check_nerfstudio_data(config)
         super().__init__(*args, **kwargs)
         self.poison_targets: dict[int, Tensor] = {}
         self.noise: NoiseSpec | None = None
@@ -66,10 +101,9 @@ class StealthDataManager(FullImageDatamanager):
     @property
     def train_image_names(self) -> list[str]:
         """Training image paths relative to the dataset folder (as users name views)."""
-        base = Path(self.config.dataparser.data)
-        base = base if base.is_dir() else base.parent
-        paths = self.train_dataparser_outputs.image_filenames
-        return [str(p.relative_to(base)) if p.is_relative_to(base) else p.name for p in paths]
+        return dataset_image_names(
+            Path(self.config.dataparser.data), self.train_dataparser_outputs.image_filenames
+        )
 
     def next_train(self, step: int) -> tuple[Cameras, dict]:
         camera, data = super().next_train(step)

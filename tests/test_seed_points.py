@@ -274,3 +274,21 @@ def test_fox_real_capture(tmp_path: Path) -> None:
     summary = make_seed_points(FOX, output=tmp_path / "fox")
     assert summary.n_images == 50 and summary.n_points > 1000
     assert summary.mean_error_px < 1.0
+
+
+def test_views_of_a_seeded_copy_keep_the_dataset_names(tmp_path):
+    """A seeded --output copy refers to the read-only dataset's images by a relative path: views
+    are still named ``images/0042.png``, not ``../../data/fox/images/0042.png``."""
+    from stealth_ns.datamanager import dataset_image_names
+
+    data = tmp_path / "data" / "fox"
+    (data / "images").mkdir(parents=True)
+    copy = tmp_path / "runs" / "fox_seeded"
+    copy.mkdir(parents=True)
+    names = ["0042.png", "0043.png"]
+    for n in names:
+        (data / "images" / n).touch()
+    inside = [data / "images" / n for n in names]
+    assert dataset_image_names(data / "transforms.json", inside) == ["images/0042.png", "images/0043.png"]
+    outside = [copy / ".." / ".." / "data" / "fox" / "images" / n for n in names]
+    assert dataset_image_names(copy / "transforms.json", outside) == ["images/0042.png", "images/0043.png"]
