@@ -15,7 +15,7 @@ from PIL import Image
 from stealth_ns.errors import StealthNSError
 from stealth_ns.scenes import make_scene
 from stealth_ns.scenes.geometry import Geometry, cast_rays
-from stealth_ns.scenes.writer import read_ply
+from stealth_ns.scenes.writer import MANIFEST, read_ply
 
 REPO = Path(__file__).resolve().parents[1]
 RES = "64x48"
@@ -119,6 +119,7 @@ def test_layout_and_summary(tmp_path):
     summary = make_scene("orbit", tmp_path / "s", resolution="32x24", views=9, seed=5)
     out = tmp_path / "s"
     assert sorted(p.name for p in out.iterdir()) == [
+        MANIFEST,
         "depths",
         "images",
         "scene.json",
@@ -269,7 +270,7 @@ def test_same_seed_gives_identical_files(tmp_path):
         make_scene("forward", out, resolution="40x30", views=8, seed=seed)
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
-    assert len(files) == 8 + 8 + 3
+    assert len(files) == 8 + 8 + 3 + 1  # images, depths, transforms/ply/scene.json, the manifest
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     for i in range(8):
@@ -323,6 +324,61 @@ def test_non_empty_output_needs_overwrite(tmp_path):
     assert len(list((out / "depths").iterdir())) == 8
     assert len(json.loads((out / "transforms.json").read_text())["frames"]) == 8
     assert (out / "notes.txt").read_text() == "keep me"
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    files = sorted(p for p in folder.rglob("*") if p.is_file())
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in files}
+
+
+@pytest.mark.parametrize("preset", ["orbit", "object"])
+def test_manifest_records_exactly_the_files_written(tmp_path, preset):
+    out = tmp_path / "scene"
+    make_scene(preset, out, resolution="16x12", views=8)
+    recorded = json.loads((out / MANIFEST).read_text())["files"]
+    assert set(recorded) == set(_tree(out)) - {MANIFEST}
+    assert all(isinstance(h, str) and len(h) == 64 for h in recorded.values())
+
+
+def test_overwrite_never_touches_a_users_files(tmp_path):
+    # a user's dataset (no manifest): --overwrite refuses it and deletes nothing
+    user = tmp_path / "mine"
+    (user / "images").mkdir(parents=True)
+    (user / "images" / "IMG_0001.jpg").write_bytes(b"my photo")
+    (user / "transforms.json").write_text('{"frames": []}')
+    before = _tree(user)
+    with pytest.raises(StealthNSError) as info:
+        make_scene("orbit", user, resolution="16x12", views=8, overwrite=True)
+    message = str(info.value)
+    assert "\n" not in message and "did not write" in message
+    assert "images/IMG_0001.jpg" in message and "transforms.json" in message
+    assert _tree(user) == before
+
+    # a generated scene a user has added to or edited: refused too, nothing deleted
+    out = tmp_path / "scene"
+    make_scene("orbit", out, resolution="16x12", views=8)
+    (out / "images" / "mine.png").write_bytes(b"user image")
+    before = _tree(out)
+    with pytest.raises(StealthNSError, match=r"did not write.*images/mine\.png"):
+        make_scene("orbit", out, resolution="16x12", views=8, seed=1, overwrite=True)
+    assert _tree(out) == before
+    (out / "images" / "mine.png").unlink()
+    (out / "transforms.json").write_text('{"edited": true}')
+    with pytest.raises(StealthNSError, match=r"changed since.*transforms\.json"):
+        make_scene("orbit", out, resolution="16x12", views=8, seed=1, overwrite=True)
+    assert (out / "transforms.json").read_text() == '{"edited": true}'
+
+    # the generator's own files (and only those) are replaced; a user's file beside them stays
+    fresh = tmp_path / "fresh"
+    make_scene("orbit", fresh, resolution="16x12", views=16)
+    (fresh / "notes.txt").write_text("keep me")
+    make_scene("forward", fresh, resolution="16x12", views=8, overwrite=True)
+    assert json.loads((fresh / "scene.json").read_text())["preset"] == "forward"
+    assert (fresh / "notes.txt").read_text() == "keep me"
+    assert set(_tree(fresh)) == set(json.loads((fresh / MANIFEST).read_text())["files"]) | {
+        MANIFEST,
+        "notes.txt",
+    }
 
 
 def test_cli_main_raises_for_bad_resolution(tmp_path):
@@ -382,6 +438,7 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 def test_facing_layout_split_and_cameras(facing_scene):
     assert sorted(p.name for p in facing_scene.iterdir()) == [
+        ".stealth-ns-scene.json",
         "depths",
         "images",
         "scene.json",
@@ -578,6 +635,7 @@ def test_object_summary_default_resolution_and_overwrite(tmp_path):
     (out / "notes.txt").write_text("keep me")
     make_scene("facing", out, resolution="16x12", views=8, overwrite=True)
     assert sorted(p.name for p in out.iterdir()) == [
+        MANIFEST,
         "depths",
         "images",
         "notes.txt",

@@ -49,13 +49,17 @@ from stealth_ns.scenes.presets import (
 )
 from stealth_ns.scenes.render import Intrinsics, RenderedView, render_view
 from stealth_ns.scenes.writer import (
+    MANIFEST,
     blender_depth_path,
+    blender_frame_path,
     blender_transforms_dict,
-    clear_generated,
+    clear_recorded,
     depth_path,
+    foreign_files,
     image_path,
     transforms_dict,
     write_json,
+    write_manifest,
     write_ply,
     write_png,
     write_rgba_png,
@@ -132,6 +136,14 @@ def _check_output(output: Path, overwrite: bool) -> None:
             raise StealthNSError(f"output {output} exists and is not a folder")
         if output.is_dir() and any(output.iterdir()) and not overwrite:
             raise StealthNSError(f"output folder {output} exists and is not empty; pass --overwrite")
+        foreign = foreign_files(output) if output.is_dir() else []
+        if foreign:
+            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+            raise StealthNSError(
+                f"output folder {output} holds files stealth-ns did not write (or that changed since; not "
+                f"recorded in {MANIFEST}): {', '.join(foreign[:3])}{more}; --overwrite replaces only the "
+                "generator's own files: move these away or choose another folder"
+            )
         output.mkdir(parents=True, exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=output)
         os.close(fd)
@@ -187,8 +199,10 @@ def make_scene(
 
     Raises :class:`~stealth_ns.errors.StealthNSError` (one-line message) for an unknown preset, a
     malformed resolution, fewer than 8 views, a negative seed, an output that cannot be written, or
-    a non-empty output folder without ``overwrite`` (with it, the previously generated entries are
-    removed first; unrelated files are left alone).
+    a non-empty output folder without ``overwrite``. With it, the files an earlier run recorded in
+    its manifest (:data:`~stealth_ns.scenes.writer.MANIFEST`) are removed first, unrelated files
+    beside them are left alone, and a folder holding files the generator did not write where it
+    writes (``images/``, ``transforms.json``, ...) is refused before anything is touched.
     """
     t0 = time.perf_counter()
     if preset not in PRESETS:
@@ -218,11 +232,14 @@ def make_scene(
         **plan.info,
     }
     try:
-        clear_generated(output)
+        clear_recorded(output)
+        planned = _planned_files(preset, plan)
+        write_manifest(output, planned, hashes=False)  # first: a run cut short can still be replaced
         if preset in BLENDER_PRESETS:
             counts = _write_blender(output, plan, intr, common)
         else:
             counts = _write_nerfstudio(output, plan, intr, common, int(seed))
+        write_manifest(output, planned, hashes=True)
     except OSError as err:
         reason = err.strerror or type(err).__name__
         raise StealthNSError(f"could not write scene to {output}: {reason}") from None
@@ -236,6 +253,25 @@ def make_scene(
         seconds=time.perf_counter() - t0,
         **counts,
     )
+
+
+def _planned_files(preset: str, plan: ScenePlan) -> list[str]:
+    """Relative paths of every file :func:`make_scene` writes for ``plan`` (its manifest)."""
+    if preset in BLENDER_PRESETS:
+        files = ["scene.json"]
+        for split, (start, stop) in plan.splits.items():
+            files.append(f"transforms_{split}.json")
+            for k in range(stop - start):
+                files += [blender_frame_path(split, k)[2:] + ".png", blender_depth_path(split, k)]
+        return files
+    views = range(len(plan.c2w))
+    return [
+        "transforms.json",
+        "sparse_pc.ply",
+        "scene.json",
+        *(image_path(i) for i in views),
+        *(depth_path(i) for i in views),
+    ]
 
 
 def _write_nerfstudio(output: Path, plan: ScenePlan, intr: Intrinsics, common: dict, seed: int) -> dict:

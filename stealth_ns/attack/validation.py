@@ -1,0 +1,199 @@
+"""Up-front checks of every :class:`~stealth_ns.attack.config.AttackConfig` option.
+
+:func:`validate_attack_config` is pure (no data, no files read except an illusion mask's
+existence) and raises :class:`~stealth_ns.errors.StealthNSError` with one line naming the option as
+the command line spells it (``--pipeline.attack.t-min``), the value given and the allowed range.
+The pipeline calls it when it is built, before any data is loaded, so that a bad value never
+ends in a traceback (or, worse, in a silently useless attack) after start-up.
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+from dataclasses import fields
+from typing import Any
+
+from stealth_ns.attack.config import AttackConfig
+from stealth_ns.errors import StealthNSError
+
+__all__ = ["MAX_GRID_RESOLUTION", "MAX_SAMPLES_PER_RAY", "option_name", "validate_attack_config"]
+
+MAX_GRID_RESOLUTION = 1024
+"""Largest KDE grid side: the density grid holds ``grid_resolution**3`` floats (4 GiB at 1024)."""
+MAX_SAMPLES_PER_RAY = 1 << 16
+"""Most samples per illusion ray (the authors used 8192)."""
+
+
+def option_name(field_name: str) -> str:
+    """``t_min`` -> ``--pipeline.attack.t-min`` (how tyro spells it on the command line)."""
+    return "--pipeline.attack." + field_name.replace("_", "-")
+
+
+def _bad(name: str, value: Any, allowed: str) -> StealthNSError:
+    return StealthNSError(f"{option_name(name)} must be {allowed}, got {value!r}")
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value: Any) -> bool:
+    """A finite int or float (NaN and +-inf are not)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _real(cfg: AttackConfig, name: str, allowed: str, ok, optional: bool = False) -> None:
+    value = getattr(cfg, name)
+    if optional and value is None:
+        return
+    if not _is_real(value) or not ok(float(value)):
+        raise _bad(name, value, allowed)
+
+
+def _int(cfg: AttackConfig, name: str, allowed: str, ok, optional: bool = False) -> None:
+    value = getattr(cfg, name)
+    if optional and value is None:
+        return
+    if not _is_int(value) or not ok(value):
+        raise _bad(name, value, allowed)
+
+
+def _choices(name: str) -> tuple[str, ...]:
+    return typing.get_args(typing.get_type_hints(AttackConfig)[name])
+
+
+def validate_attack_config(cfg: AttackConfig, max_iterations: int | None = None) -> None:
+    """Raise :class:`StealthNSError` (one line) for the first option of ``cfg`` out of its range.
+
+    ``max_iterations``: the run's training length, when known; the injection step must come before it.
+    """
+    for name in ("enabled", "gt_replacement", "density_guided", "view_noise", "outlier_removal"):
+        if not isinstance(getattr(cfg, name), bool):
+            raise _bad(name, getattr(cfg, name), "True or False")
+
+    # the illusion
+    if not isinstance(cfg.illusion, str) or not cfg.illusion.strip():
+        raise _bad("illusion", cfg.illusion, "a built-in illusion name or an image path")
+    mask = cfg.illusion_mask
+    if mask is not None and (not str(mask).strip() or not _path_exists(mask)):
+        raise _bad("illusion_mask", str(mask), "None or an existing mask image")
+    center = cfg.illusion_center
+    if (
+        not isinstance(center, (tuple, list))
+        or len(center) != 2
+        or not all(_is_real(c) and 0.0 <= float(c) <= 1.0 for c in center)
+    ):
+        raise _bad(
+            "illusion_center", center, "two fractions (x y) of the view's width and height, each in [0, 1]"
+        )
+    _real(
+        cfg,
+        "illusion_scale",
+        "in (0, 1] (a fraction of the view's height; a larger illusion does not fit)",
+        lambda v: 0.0 < v <= 1.0,
+    )
+
+    # poisoned views
+    views = cfg.views
+    if not isinstance(views, (tuple, list)) or not all(
+        (isinstance(v, str) and v.strip()) or (_is_int(v) and v >= 0) for v in views
+    ):
+        raise _bad("views", views, "training-view indices (>= 0) or image names")
+    _int(cfg, "multi_view", "1, 2, 3 or 4", lambda v: 1 <= v <= 4)
+
+    # density and KDE
+    _real(cfg, "voxel_size", "None or > 0 (scene units)", lambda v: v > 0.0, optional=True)
+    _int(
+        cfg,
+        "grid_resolution",
+        f"an integer in [2, {MAX_GRID_RESOLUTION}]",
+        lambda v: 2 <= v <= MAX_GRID_RESOLUTION,
+    )
+    _real(cfg, "bandwidth", "> 0 (voxels)", lambda v: v > 0.0)
+    _real(cfg, "visibility_margin", ">= 0 (a fraction of the rendered depth)", lambda v: v >= 0.0)
+    _real(
+        cfg, "t_min_fraction", "in (0, 1) (a fraction of the median rendered depth)", lambda v: 0.0 < v < 1.0
+    )
+    _real(
+        cfg,
+        "unseen_t_min_fraction",
+        "in (0, 1) (a fraction of the median rendered depth)",
+        lambda v: 0.0 < v < 1.0,
+    )
+    _real(cfg, "t_min", "None or > 0 (scene units, in front of the camera)", lambda v: v > 0.0, optional=True)
+    _int(
+        cfg,
+        "samples_per_ray",
+        f"an integer in [1, {MAX_SAMPLES_PER_RAY}]",
+        lambda v: 1 <= v <= MAX_SAMPLES_PER_RAY,
+    )
+    for name in ("placement", "tie_break", "noise_decay"):
+        choices = _choices(name)
+        if getattr(cfg, name) not in choices:
+            raise _bad(name, getattr(cfg, name), "one of " + ", ".join(choices))
+
+    # injection
+    if max_iterations is None:
+        _int(cfg, "injection_step", "None (end of warm-up) or a step >= 0", lambda v: v >= 0, optional=True)
+    else:
+        _int(
+            cfg,
+            "injection_step",
+            f"None (end of warm-up) or a step in [0, {max_iterations}) (the run's --max-num-iterations)",
+            lambda v: 0 <= v < max_iterations,
+            optional=True,
+        )
+    _real(cfg, "poison_opacity", "in (0, 1) (open interval)", lambda v: 0.0 < v < 1.0)
+    _real(cfg, "poison_scale", "> 0 (pixel footprints)", lambda v: v > 0.0)
+
+    # view-consistency noise
+    _real(cfg, "noise_sigma0", "finite and >= 0 (0-255 scale)", lambda v: v >= 0.0)
+    _int(cfg, "seed", "an integer >= 0", lambda v: v >= 0)
+
+    checked = _CHECKED
+    unchecked = {f.name for f in fields(AttackConfig)} - checked
+    if unchecked:  # a new option without a rule: fail loudly in tests, not silently for users
+        raise AssertionError(f"AttackConfig options without a check: {sorted(unchecked)}")
+
+
+_CHECKED = frozenset(
+    {
+        "enabled",
+        "gt_replacement",
+        "density_guided",
+        "view_noise",
+        "outlier_removal",
+        "illusion",
+        "illusion_mask",
+        "illusion_center",
+        "illusion_scale",
+        "views",
+        "multi_view",
+        "voxel_size",
+        "grid_resolution",
+        "bandwidth",
+        "visibility_margin",
+        "t_min_fraction",
+        "unseen_t_min_fraction",
+        "t_min",
+        "samples_per_ray",
+        "placement",
+        "tie_break",
+        "noise_decay",
+        "injection_step",
+        "poison_opacity",
+        "poison_scale",
+        "noise_sigma0",
+        "seed",
+    }
+)
+
+
+def _path_exists(path: Any) -> bool:
+    from pathlib import Path
+
+    try:
+        return Path(path).expanduser().is_file()
+    except (OSError, TypeError, ValueError):
+        return False
