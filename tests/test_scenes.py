@@ -533,6 +533,7 @@ def _pixel_rays(width: int, height: int, angle_x: float, c2w: np.ndarray) -> np.
 
 def test_object_layout_and_cameras(object_scene):
     assert sorted(p.name for p in object_scene.iterdir()) == [
+        ".stealth-ns-scene.json",
         "depths",
         "scene.json",
         "test",
@@ -662,7 +663,8 @@ def test_new_presets_are_deterministic(tmp_path, preset):
         make_scene(preset, out, resolution="32x24", views=8, seed=seed)
     files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
-    assert len(files) == (8 + 8 + 3 if preset == "facing" else 8 + 8 + 3 + 1)
+    # images, depth maps, transforms/scene/points (facing) or transforms x3 + scene, the manifest
+    assert len(files) == (8 + 8 + 3 if preset == "facing" else 8 + 8 + 3 + 1) + 1
     for rel in files:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     images = [rel for rel in files if rel.suffix == ".png"]
