@@ -13,6 +13,9 @@ from stealth_ns.model import StealthSplatModelConfig
 from stealth_ns.pipeline import StealthPipelineConfig
 from stealth_ns.schedulers import FloatExponentialDecaySchedulerConfig
 
+#: The viewer's default bind address during ns-train: loopback, not every interface.
+VIEWER_HOST = "127.0.0.1"
+
 
 def default_device_type() -> str:
     """CUDA when this machine has it, else CPU (override with --machine.device-type)."""
@@ -72,6 +75,8 @@ def trainer_config(
             model=model,
         ),
         optimizers=gaussian_optimizers(max_steps, camera_warmup=max(1, max_steps // 30)),
-        viewer=ViewerConfig(num_rays_per_chunk=1 << 15),
+        # this machine only (nerfstudio: 0.0.0.0, every interface); open it up with
+        # --viewer.websocket-host 0.0.0.0 (docs/viewer.md)
+        viewer=ViewerConfig(num_rays_per_chunk=1 << 15, websocket_host=VIEWER_HOST),
         vis="viewer",
     )

@@ -185,6 +185,24 @@ class SeedPoints:
         print(summary)
 
 
+@dataclass
+class CheckData:
+    """Check a nerfstudio-data dataset (transforms.json, images, poses, intrinsics) before training."""
+
+    data: Path
+    """nerfstudio-data folder (transforms.json) or a transforms JSON file."""
+
+    def main(self) -> None:
+        from stealth_ns.dataset_check import check_dataset
+
+        try:
+            summary = check_dataset(self.data)
+        except StealthNSError as err:  # a broken dataset is this command's "no" answer: exit 1
+            print(f"stealth-ns: error: {err}", file=sys.stderr)
+            sys.exit(1)
+        print(summary)
+
+
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
 # tyro union) so that every command, nested ones included, gets its own --help.
 COMMANDS: dict[str, type] = {
@@ -195,6 +213,7 @@ COMMANDS: dict[str, type] = {
     "bench attack": BenchAttack,
     "rank-views": RankViews,
     "seed-points": SeedPoints,
+    "check-data": CheckData,
 }
 
 

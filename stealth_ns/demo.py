@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation.runs import TrainRecord, TrainSpec, train, train_progress
 
 
@@ -70,6 +71,8 @@ def run_demo(output: Path, iterations: int | None = None, seed: int = 0) -> Demo
     from stealth_ns.evaluation.report import write_report
     from stealth_ns.scenes import make_scene
 
+    if iterations is not None and (isinstance(iterations, bool) or iterations < 1):
+        raise StealthNSError(f"--iterations must be at least 1, got {iterations}")
     output = output.resolve()
     output.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()

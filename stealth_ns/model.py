@@ -32,7 +32,7 @@ import contextlib
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from gsplat.strategy import DefaultStrategy
@@ -51,6 +51,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from pytorch_msssim import SSIM
 from torch import Tensor
 
+from stealth_ns.errors import StealthNSError
 from stealth_ns.metrics import LazyLPIPS
 from stealth_ns.raster import rasterization, resolve_backend
 
@@ -225,6 +226,8 @@ class StealthSplatModel(SplatfactoModel):
     def get_training_callbacks(
         self, training_callback_attributes: TrainingCallbackAttributes
     ) -> list[TrainingCallback]:
+        if training_callback_attributes.optimizers is not None:
+            self.rebind_optimizers(training_callback_attributes.optimizers.optimizers)
         pipeline = training_callback_attributes.pipeline
         datamanager = getattr(pipeline, "datamanager", None)
         dataset = getattr(datamanager, "train_dataset", None)
@@ -304,7 +307,51 @@ class StealthSplatModel(SplatfactoModel):
             self._tag_optimizer = torch.optim.Adam([tag], lr=0.0)
         self.optimizers = {**self.optimizers, POISON_TAG: self._tag_optimizer}
 
+    @torch.no_grad()
+    def rebind_optimizers(self, optimizers: dict[str, torch.optim.Optimizer]) -> None:
+        """Point every Gaussian optimizer at the model's current rows, keeping its state.
+
+        nerfstudio builds the optimizers before it loads a checkpoint, and loading replaces every
+        ``gauss_params`` entry with a checkpoint-sized Parameter: without this, a resumed run steps
+        the seed-point-sized tensors it no longer renders and gsplat's densification indexes them
+        with the checkpoint's rows (an IndexError at the first refinement).
+        """
+        for name, optimizer in optimizers.items():
+            if name not in self.gauss_params:
+                continue
+            param = self.gauss_params[name]
+            for group in optimizer.param_groups:
+                (old,) = group["params"]
+                if old is param:
+                    continue
+                state = optimizer.state.pop(old, None)
+                group["params"] = [param]
+                if state is not None:
+                    for key, value in state.items():
+                        if isinstance(value, Tensor) and value.dim() > 0 and value.shape != param.shape:
+                            raise StealthNSError(
+                                f"optimizer state {name}.{key} has shape {tuple(value.shape)} but the "
+                                f"model's {name} has {tuple(param.shape)}: checkpoint and optimizer "
+                                "state do not belong together"
+                            )
+                    optimizer.state[param] = state
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """Stored in checkpoints: gsplat's densification statistics (per-Gaussian gradient sums
+        and counts since the last refinement), so a resumed run refines as it would have."""
+        return {
+            k: v.detach().cpu().clone() if isinstance(v, Tensor) else v
+            for k, v in self.strategy_state.items()
+        }
+
+    def set_extra_state(self, state: Any) -> None:
+        if isinstance(state, dict) and state:
+            self.strategy_state.update(
+                {k: v.to(self.device) if isinstance(v, Tensor) else v for k, v in state.items()}
+            )
+
     def load_state_dict(self, state_dict, **kwargs):  # type: ignore[override]
+        state_dict.setdefault("_extra_state", {})  # checkpoint from before the strategy state was stored
         key = f"gauss_params.{POISON_TAG}"
         if key not in state_dict and "gauss_params.means" in state_dict:  # checkpoint from before the tag
             state_dict[key] = torch.zeros(state_dict["gauss_params.means"].shape[0])

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,10 +35,12 @@ from stealth_ns.attack.illusion import (
     save_png,
 )
 from stealth_ns.attack.injection import PoisonPlacement, PoisonView, append_gaussians, place_poison
+from stealth_ns.attack.validation import validate_attack_config
 from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
 from stealth_ns.attack.visibility import CameraDepths
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager
 from stealth_ns.errors import StealthNSError
+from stealth_ns.fingerprint import record_fingerprint
 from stealth_ns.metrics import illusion_metrics, psnr
 from stealth_ns.model import NEAR_PLANE, POISON_TAG, StealthSplatModel, viewmat_from_c2w
 from stealth_ns.viewer_panel import StealthAttackPanel
@@ -113,6 +116,8 @@ def check_seed_points(model: StealthSplatModel, datamanager: StealthDataManager)
     points = model.seed_points[0] if model.seed_points is not None else None
     if model.config.random_init:
         why = "--pipeline.model.random-init is on"
+    elif points is None and (named := _named_seed_point_file(datamanager)) is not None:
+        why = named
     elif points is None:
         why = (
             "the dataset has no seed points (no ply_file_path in transforms.json, no COLMAP points, "
@@ -128,6 +133,28 @@ def check_seed_points(model: StealthSplatModel, datamanager: StealthDataManager)
         f"Triangulate them from the known poses with `stealth-ns seed-points --data {data}` and train "
         "on the dataset it prints, or turn the component off with --pipeline.attack.density-guided False"
     )
+
+
+def _named_seed_point_file(datamanager: StealthDataManager) -> str | None:
+    """Why the seed-point file named by a nerfstudio-data transforms file gave no points, if it names one."""
+    from stealth_ns.dataset_check import ply_vertex_count, transforms_path
+
+    data = getattr(datamanager.config.dataparser, "data", None)
+    try:
+        path = transforms_path(Path(data))
+        ply = json.loads(path.read_text(encoding="utf-8")).get("ply_file_path")
+    except (TypeError, OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(ply, str):
+        return None
+    ply_path = path.parent / ply
+    if not ply_path.is_file():
+        return f"the seed-point file {ply_path} (ply_file_path) does not exist"
+    try:
+        n = ply_vertex_count(ply_path)
+    except StealthNSError as err:
+        return str(err)
+    return f"the seed-point file {ply_path} has no points" if n == 0 else None
 
 
 def rgb_float(image: torch.Tensor) -> torch.Tensor:
@@ -156,10 +183,17 @@ class StealthPipeline(VanillaPipeline):
     datamanager: StealthDataManager
 
     def __init__(self, config: StealthPipelineConfig, device: str, *args: Any, **kwargs: Any) -> None:
+        if kwargs.get("test_mode", args[0] if args else "val") != "inference":
+            try:  # every attack option, before any data is loaded
+                validate_attack_config(config.attack)
+            except StealthNSError as err:
+                fail(err)
         super().__init__(config, device, *args, **kwargs)
         self.poison_views: list[PoisonView] = []
         self.attack_dir: Path | None = None
         self.attack_record: dict[str, Any] = {}
+        self._restored_record: dict[str, Any] | None = None  # from a loaded checkpoint
+        self._loaded_step = -1
         self.stealth_attack = StealthAttackPanel(self)  # the viewer's panel; inert without a viewer
         cfg = config.attack
         if self.test_mode == "inference":  # ns-viewer / ns-export: no training data needed
@@ -189,11 +223,30 @@ class StealthPipeline(VanillaPipeline):
         return self.model.config.warmup_length if step is None else step
 
     def get_training_callbacks(self, attrs: TrainingCallbackAttributes) -> list[TrainingCallback]:
-        callbacks = super().get_training_callbacks(attrs)
+        try:
+            callbacks = super().get_training_callbacks(attrs)
+        except StealthNSError as err:
+            fail(err)
+        if attrs.trainer is not None:  # clean or attacked: which dataset (stealth-ns report checks it)
+            record_fingerprint(
+                Path(attrs.trainer.base_dir),
+                self.datamanager.train_dataparser_outputs,
+                self.datamanager.config.dataparser.data,
+            )
         cfg = self.config.attack
         if not cfg.enabled or not self.poison_views:
             return callbacks
         max_steps = attrs.trainer.config.max_num_iterations if attrs.trainer is not None else 30_000
+        restored = self._restored_record
+        if restored is not None and restored.get("noise"):  # resumed: the original noise schedule
+            max_steps = int(restored["noise"]["total_steps"])
+        if restored is None and cfg.density_guided and self.injection_step >= max_steps:  # injects nothing
+            given = "" if cfg.injection_step is not None else " (None: the end of the model's warm-up)"
+            fail(
+                f"--pipeline.attack.injection-step must be None or a step in [0, {max_steps}) "
+                f"(the run's --max-num-iterations), got {self.injection_step}{given}: "
+                "no poison Gaussian would be injected"
+            )
         targets = {}
         if cfg.gt_replacement:
             for v in self.poison_views:
@@ -202,6 +255,9 @@ class StealthPipeline(VanillaPipeline):
         self.datamanager.set_poison(targets, noise)
         if attrs.trainer is not None:
             self.attack_dir = Path(attrs.trainer.base_dir) / "attack"
+        if restored is not None:
+            self._continue_record(restored, attrs)
+            return callbacks + self._injection_callbacks()
         self.attack_record = {
             "config": _jsonable(dataclasses.asdict(cfg)),
             "poisoned_views": [
@@ -213,20 +269,55 @@ class StealthPipeline(VanillaPipeline):
             "n_poison_gaussians": 0,
         }
         self._write_view_artifacts()
-        if cfg.density_guided:
-            if self.injection_step >= max_steps:
-                CONSOLE.print(
-                    f"[yellow]stealth-ns: injection step {self.injection_step} is after the last step "
-                    f"({max_steps}); no poison Gaussians will be injected"
-                )
-            callbacks.append(
-                TrainingCallback(
-                    where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION],
-                    func=self.inject_poison,
-                    iters=(self.injection_step,),
-                )
+        return callbacks + self._injection_callbacks()
+
+    def _injection_callbacks(self) -> list[TrainingCallback]:
+        """The injection, unless the record says it happened (a resumed run)."""
+        if not self.config.attack.density_guided or "injected_at_step" in self.attack_record:
+            return []
+        return [
+            TrainingCallback(
+                where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION],
+                func=self.inject_poison,
+                iters=(self.injection_step,),
             )
-        return callbacks
+        ]
+
+    # ------------------------------------------------------------------ checkpoints and resuming
+    def get_extra_state(self) -> dict[str, str]:
+        """Stored in every checkpoint: the attack record, which a resumed run continues."""
+        return {"attack_record": json.dumps(self.attack_record, sort_keys=True)}
+
+    def set_extra_state(self, state: Any) -> None:
+        if isinstance(state, dict) and state.get("attack_record"):
+            self._restored_record = json.loads(state["attack_record"]) or None
+
+    def load_pipeline(self, loaded_state: dict[str, Any], step: int) -> None:
+        state = dict(loaded_state)
+        state.setdefault("_extra_state", {})  # checkpoint from before the record was stored
+        self._loaded_step = step
+        super().load_pipeline(state, step)
+
+    def _continue_record(self, restored: dict[str, Any], attrs: TrainingCallbackAttributes) -> None:
+        """A run resumed from a checkpoint (``--load-dir``): carry its record on, say where it
+        resumed and with how many poison Gaussians, and copy its injection artifacts over."""
+        self.attack_record = restored
+        resumed = {"step": self._loaded_step + 1, "poison_gaussians": int(self.model.poison_mask.sum())}
+        load_dir = getattr(getattr(attrs.trainer, "config", None), "load_dir", None)
+        if load_dir is not None:
+            resumed["from"] = str(Path(load_dir).parent)
+            previous = Path(load_dir).parent / "attack"
+            if self.attack_dir is not None and previous.resolve() != self.attack_dir.resolve():
+                self.attack_dir.mkdir(parents=True, exist_ok=True)
+                for name in ("poison_points.ply", "density_grid.npz"):
+                    if (previous / name).is_file() and not (self.attack_dir / name).exists():
+                        shutil.copy2(previous / name, self.attack_dir / name)
+        self.attack_record.setdefault("resumed", []).append(resumed)
+        CONSOLE.log(
+            f"stealth-ns: resumed at step {resumed['step']} "
+            f"with {resumed['poison_gaussians']} poison Gaussians"
+        )
+        self._write_view_artifacts()
 
     # ------------------------------------------------------------------ injection
     @torch.no_grad()

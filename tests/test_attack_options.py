@@ -109,11 +109,11 @@ def test_pipeline_refuses_bad_options_before_loading_data(name, value, tmp_path)
     assert repr(value) in message
 
 
-def test_injection_after_the_last_step_is_refused(tiny_orbit_scene):
+def test_injection_after_the_last_step_is_refused(tiny_orbit_scene, tmp_path):
     from nerfstudio.engine.callbacks import TrainingCallbackAttributes
 
     pipeline = build_pipeline(tiny_orbit_scene, AttackConfig(injection_step=None))  # warm-up: step 5
-    trainer = type("T", (), {"config": type("C", (), {"max_num_iterations": 5})(), "base_dir": "unused"})()
+    trainer = type("T", (), {"config": type("C", (), {"max_num_iterations": 5})(), "base_dir": tmp_path})()
     attrs = TrainingCallbackAttributes(optimizers=None, grad_scaler=None, pipeline=pipeline, trainer=trainer)
     with pytest.raises(SystemExit, match=r"injection-step must be None or a step in \[0, 5\).*got 5"):
         pipeline.get_training_callbacks(attrs)

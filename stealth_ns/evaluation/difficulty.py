@@ -481,6 +481,29 @@ def _check_seed_points(json_path: Path) -> None:
         )
     if not (json_path.parent / ply).is_file():
         raise StealthNSError(f"seed point file {json_path.parent / ply} (ply_file_path) does not exist")
+    _check_frame_poses(json_path, meta["frames"])
+
+
+def _check_frame_poses(json_path: Path, frames: list[Any]) -> None:
+    """Refuse a frame whose transform_matrix is not a 4x4 matrix of finite numbers, naming it: one NaN
+    turns every pose NaN in nerfstudio's orientation step (and the seed points with them)."""
+    for i, frame in enumerate(frames):
+        name = frame.get("file_path", f"#{i}") if isinstance(frame, dict) else f"#{i}"
+        try:
+            matrix = np.asarray(frame["transform_matrix"], dtype=np.float64)
+        except (TypeError, KeyError, ValueError):
+            raise StealthNSError(
+                f"{json_path}: frame {i} ({name}) has no transform_matrix of numbers"
+            ) from None
+        if matrix.shape != (4, 4):
+            raise StealthNSError(
+                f"{json_path}: the transform_matrix of frame {i} ({name}) is {matrix.shape}, not 4x4"
+            )
+        if not np.all(np.isfinite(matrix)):
+            raise StealthNSError(
+                f"{json_path}: the camera pose (transform_matrix) of frame {i} ({name}) is not finite "
+                "(NaN or infinity)"
+            )
 
 
 def _load_train_split(data: Path) -> tuple[Any, np.ndarray, str]:
@@ -507,6 +530,13 @@ def _load_train_split(data: Path) -> tuple[Any, np.ndarray, str]:
         raise StealthNSError(f"nerfstudio's {fmt} dataparser cannot read {data}: {err}") from None
     finally:
         CONSOLE.quiet = quiet
+    c2w = outputs.cameras.camera_to_worlds.reshape(len(outputs.image_filenames), -1)
+    bad = np.flatnonzero(~np.all(np.isfinite(c2w.double().numpy()), axis=1))
+    if len(bad):  # a COLMAP model (nerfstudio-data frames are checked before parsing)
+        raise StealthNSError(
+            f"{data}: the camera pose of {Path(outputs.image_filenames[bad[0]]).name} is not finite "
+            f"(NaN or infinity) after nerfstudio's {fmt} dataparser ({len(bad)} such views)"
+        )
     points = outputs.metadata.get("points3D_xyz")
     if points is None or len(points) == 0:
         raise StealthNSError(f"{data} has no seed points: the KDE difficulty protocol needs a point cloud")

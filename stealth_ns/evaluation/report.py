@@ -1,6 +1,7 @@
 """The attack report: a poisoned run against a clean run of the same scene.
 
-``compare_runs`` loads both runs (nerfstudio's ``eval_setup``), renders them and returns the
+``compare_runs`` loads both runs (nerfstudio's ``eval_setup`` with a safe YAML loader,
+:mod:`stealth_ns.safe_config`), checks they were trained on the same dataset, renders them and returns the
 paper's numbers: V-illusory (masked metrics of the poisoned view against the illusion target
 I_ILL), V-test (held-out views against the clean images) for both runs and its drop, the
 success verdicts (paper: V-illusory PSNR > 25 dB and drop <= 3 dB; appendix: 25/8, 20/9,
@@ -17,6 +18,8 @@ import contextlib
 import datetime as _dt
 import html
 import json
+import re
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +31,7 @@ from stealth_ns.attack.illusion import save_png
 from stealth_ns.attack.views import rotate_pose, scene_center, scene_up
 from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation.runs import json_safe
+from stealth_ns.fingerprint import dataset_fingerprint, fingerprint_differences, recorded_fingerprint
 from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr
 from stealth_ns.pipeline import rgb_float
 from stealth_ns.provenance import software_and_hardware
@@ -74,14 +78,31 @@ class LoadedRun:
         attack = getattr(self.pipeline.config, "attack", None)
         return bool(attack is not None and attack.enabled)
 
+    @property
+    def data(self) -> Path:
+        """The dataset the run was loaded with."""
+        dm = self.pipeline.datamanager.config
+        return Path(dm.data or dm.dataparser.data)
+
+    def fingerprints(self) -> dict[str, dict[str, Any]]:
+        """``{"train": ..., "held-out": ...}`` (:mod:`stealth_ns.fingerprint`): the training split's as
+        recorded when the run was trained (recomputed for runs that lack the record), the held-out
+        split's from the dataset as loaded."""
+        dm = self.pipeline.datamanager
+        train = recorded_fingerprint(self.config_path.parent)
+        if train is None:
+            train = dataset_fingerprint(dm.train_dataparser_outputs)
+        return {"train": train, "held-out": dataset_fingerprint(dm.eval_dataset._dataparser_outputs)}
+
 
 def load_run(config_path: Path) -> LoadedRun:
     """``eval_setup`` for a run folder's ``config.yml``, with one-line errors for the usual mistakes.
 
-    The checkpoint is looked up next to the config file, so a run folder that was moved (or a
-    relative ``--output-dir``) still loads.
+    The config is read with :func:`stealth_ns.safe_config.load_config` (a YAML loader that executes
+    nothing). The checkpoint is looked up next to the config file, so a run folder that was moved
+    (or a relative ``--output-dir``) still loads.
     """
-    from nerfstudio.utils.eval_utils import eval_setup
+    from stealth_ns.safe_config import safe_eval_setup
 
     config_path = Path(config_path)
     if config_path.is_dir():
@@ -105,7 +126,7 @@ def load_run(config_path: Path) -> LoadedRun:
         return config
 
     try:
-        _, pipeline, _, step = eval_setup(config_path, test_mode="test", update_config_callback=relocate)
+        _, pipeline, _, step = safe_eval_setup(config_path, test_mode="test", update_config_callback=relocate)
     except SystemExit as err:  # the pipeline's own one-line errors
         raise StealthNSError(str(err).removeprefix("stealth-ns: error: ")) from None
     return LoadedRun(config_path, pipeline, step)
@@ -148,11 +169,24 @@ class RunPair:
                 f"{clean} was trained with the attack on; train the clean run with "
                 "--pipeline.attack.enabled False (or any other splatting method)"
             )
-        if pair.poisoned.train_names != pair.clean.train_names:
-            raise StealthNSError(
-                "the two runs were not trained on the same scene (their training images differ)"
-            )
+        pair.check_same_dataset()
         return pair
+
+    def check_same_dataset(self) -> None:
+        """StealthNSError (one line, naming both runs and what differs) unless both runs were trained
+        on the same images with the same poses, and are evaluated on the same held-out views."""
+        ours, theirs = self.poisoned.fingerprints(), self.clean.fingerprints()
+        differ = []
+        for split, label in (("train", "training"), ("held-out", "held-out")):
+            for what in fingerprint_differences(ours[split], theirs[split]):
+                differ.append(f"{label} {'images' if what == 'images' else 'camera poses'}")
+        if differ:
+            raise StealthNSError(
+                f"the runs were not trained on the same dataset: their {' and '.join(differ)} differ "
+                f"(poisoned run {self.poisoned.config_path}, data {self.poisoned.data}, "
+                f"{ours['train']['n_images']} training images; clean run {self.clean.config_path}, "
+                f"data {self.clean.data}, {theirs['train']['n_images']} training images)"
+            )
 
     @property
     def views(self) -> list[Any]:
@@ -309,13 +343,63 @@ def _innocent_strip(pair: RunPair, images: Path) -> list[dict[str, Any]]:
     return strip
 
 
+#: Files a report writes (relative to its folder): removed from a reused folder before writing, so
+#: that no picture of an earlier report stays behind; any other file is left alone.
+REPORT_FILES = re.compile(
+    r"(report\.json|report\.html|poisoned_views\.png|heldout_views\.png|neighbour_curve\.png"
+    r"|images/view\d{4,}_(target|poisoned|clean|poison_hidden|mask)\.png"
+    r"|images/heldout\d{3,}_(gt|clean|poisoned)\.png)"
+)
+
+
+def check_writable(output: Path) -> None:
+    """StealthNSError unless the report folder ``output`` (existing or to be created) can be written."""
+    if output.exists() and not output.is_dir():
+        raise StealthNSError(f"--output {output} is a file, not a folder")
+    if (output / "images").exists() and not (output / "images").is_dir():
+        raise StealthNSError(f"--output {output}: {output / 'images'} is a file, not a folder")
+    existing = output
+    while not existing.exists():
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        raise StealthNSError(f"cannot write the report to {output}: {existing} is a file, not a folder")
+    try:  # a real write: permissions, read-only file systems, root
+        with tempfile.TemporaryDirectory(dir=existing, prefix=".stealth-ns-write-test-"):
+            pass
+    except OSError as err:
+        raise StealthNSError(
+            f"cannot write the report to {output}: {err.strerror or err} ({existing})"
+        ) from None
+
+
+def clear_previous_report(output: Path) -> list[Path]:
+    """Delete the files an earlier report wrote into ``output`` (:data:`REPORT_FILES`); returns them."""
+    if not output.is_dir():
+        return []
+    candidates = [*output.glob("*"), *(output / "images").glob("*")]  # no images/: none
+    removed = []
+    for path in candidates:
+        rel = path.relative_to(output).as_posix()
+        if path.is_file() and not path.is_symlink() and REPORT_FILES.fullmatch(rel):
+            try:
+                path.unlink()
+            except OSError as err:
+                raise StealthNSError(
+                    f"cannot replace {path} of an earlier report: {err.strerror or err}"
+                ) from None
+            removed.append(path)
+    return removed
+
+
 def write_report(poisoned_config: Path, clean_config: Path, output: Path) -> dict[str, Any]:
     """Compare the runs and write ``report.json``, ``report.html`` and PNGs into ``output``."""
     output = Path(output)
-    if output.exists() and not output.is_dir():
-        raise StealthNSError(f"--output {output} is a file, not a folder")
+    check_writable(output)  # before loading two runs (the slow part)
     pair = RunPair.load(Path(poisoned_config), Path(clean_config))
     images = output / "images"
+    clear_previous_report(output)
     images.mkdir(parents=True, exist_ok=True)
     report = pair_metrics(pair)
     report["poisoned_run"] = str(pair.poisoned.config_path.resolve())
