@@ -30,7 +30,8 @@ FINGERPRINT_FILE = "dataset.json"
 FINGERPRINT_VERSION = 1
 
 
-def _file_sha256(path: Path) -> str:
+def file_sha256(path: Path) -> str:
+    """Hex SHA-256 of a file's bytes (read in 1 MiB blocks)."""
     digest = hashlib.sha256()
     with Path(path).open("rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -52,7 +53,7 @@ def dataset_fingerprint(outputs: Any) -> dict[str, Any]:
     """The fingerprint of one split's ``DataparserOutputs`` (see the module docstring)."""
     images = hashlib.sha256()
     for path in outputs.image_filenames:
-        images.update(Path(path).name.encode() + b"\0" + _file_sha256(Path(path)).encode() + b"\n")
+        images.update(Path(path).name.encode() + b"\0" + file_sha256(Path(path)).encode() + b"\n")
     cams = np.round(camera_array(outputs.cameras), 4) + 0.0  # + 0.0: -0.0 -> 0.0
     poses = hashlib.sha256(np.ascontiguousarray(cams, dtype="<f8").tobytes())
     return {

@@ -50,6 +50,7 @@ from stealth_ns.evaluation.runs import (
     train_progress,
     write_json_atomic,
 )
+from stealth_ns.fingerprint import file_sha256
 from stealth_ns.method_configs.attack_experiments import (
     DEFAULT_SCENES,
     FOLDERS,
@@ -150,17 +151,9 @@ class SceneSource:
         return f"{self.format}, {where}; used in place, never written"
 
 
-def _sha256_file(path: Path) -> str:
-    digest = hashlib.sha256()
-    with Path(path).open("rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def _hashes(root: Path, rels: Sequence[str]) -> tuple[tuple[str, str], ...]:
     try:
-        return tuple((rel, _sha256_file(root / rel)) for rel in rels)
+        return tuple((rel, file_sha256(root / rel)) for rel in rels)
     except OSError as err:
         raise StealthNSError(f"cannot read {root}: {err.strerror or err}") from None
 
@@ -269,7 +262,7 @@ def ensure_seed_points(output: Path, source: SceneSource) -> dict[str, Any]:
         "format": source.format,
         "dataset": str(Path(summary.dataset).absolute()),
         "ply": str(ply),
-        "ply_sha256": _sha256_file(ply),
+        "ply_sha256": file_sha256(ply),
         "n_points": int(summary.n_points),
         "seconds": round(float(summary.seconds), 2),
         "seed": 0,

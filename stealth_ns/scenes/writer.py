@@ -25,12 +25,13 @@ floats rounded to a fixed number of decimals.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
+
+from stealth_ns.fingerprint import file_sha256
 
 BLENDER_SPLITS = ("train", "val", "test")
 GENERATED = (
@@ -139,10 +140,6 @@ def write_json(path: Path, obj: dict) -> None:
     Path(path).write_text(text + "\n", encoding="utf-8")
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def _entries(output: Path) -> list[Path]:
     """Files (and links) under ``output``'s :data:`GENERATED` entries, relative to ``output``."""
     found = []
@@ -176,7 +173,7 @@ def foreign_files(output: Path) -> list[str]:
         p = output / rel
         if key not in recorded or p.is_symlink() or p.is_dir():
             foreign.append(key)
-        elif recorded[key] is not None and _sha256(p) != recorded[key]:
+        elif recorded[key] is not None and file_sha256(p) != recorded[key]:
             foreign.append(key)
     return foreign
 
@@ -184,7 +181,9 @@ def foreign_files(output: Path) -> list[str]:
 def write_manifest(output: Path, files: list[str], hashes: bool) -> None:
     """Record ``files`` (relative paths) as written by the generator; with ``hashes`` their SHA-256
     (after writing), else None (before writing: a run cut short may still remove them)."""
-    record = {f: (_sha256(output / f) if hashes and (output / f).is_file() else None) for f in sorted(files)}
+    record = {
+        f: (file_sha256(output / f) if hashes and (output / f).is_file() else None) for f in sorted(files)
+    }
     text = json.dumps({"generator": "stealth_ns.scenes", "files": record}, indent=2, sort_keys=True)
     (output / MANIFEST).write_text(text + "\n", encoding="utf-8")
 
