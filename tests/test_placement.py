@@ -152,6 +152,9 @@ def test_view_aware_keeps_poison_beyond_the_near_plane():
     out = _place((0.2, 0.0, 0.0), near_plane=0.1)
     assert -float(out.means[0, 2]) >= 0.375
     assert out.unseen_fraction["poisoned"] == 0.0
+    # the paper's range too: a near bound below 2 near planes is raised to them
+    out = _place((0.0, 0.0, -10.0), looking_back=True, innocent_alpha=0.0, near_plane=0.3)
+    assert -float(out.means[0, 2]) >= 0.6 - 1e-6
 
 
 def test_random_init_is_refused_with_what_to_run(tiny_orbit_scene):

@@ -125,8 +125,8 @@ def place_poison(
         cfg: the attack config (KDE, placement, t_min, samples, tie-break, poison scale).
         innocent: the innocent training cameras with their rendered depth; required by
             ``placement="view-aware"``.
-        near_plane: the rasterizer's near plane (camera-space z, scene units); view-aware
-            poison stays at least twice as far, where it is still drawn.
+        near_plane: the rasterizer's near plane (camera-space z, scene units); every poison
+            Gaussian stays at least twice as far from the camera, where it is still drawn.
     """
     if cfg.placement == "view-aware" and innocent is None:
         raise ValueError("view-aware placement needs the innocent cameras' rendered depth")
@@ -171,12 +171,13 @@ def place_poison(
             tie_break=cfg.tie_break,
             penalty=penalty,
         )
-        found = search(t_min)
+        # per ray: never nearer than 2 near planes in camera z (t = z / cos_theta): still drawn
+        drawn = 2.0 * near_plane / cos
+        found = search(torch.clamp(drawn, min=t_min))
         if penalty is not None:
             t_unseen = min(t_min, cfg.unseen_t_min_fraction * scene_depth)
             near_unseen[view.name] = t_unseen
-            # per ray: never nearer than 2 near planes in camera z (t = z / cos_theta)
-            unseen = search(torch.clamp(2.0 * near_plane / cos, min=t_unseen))
+            unseen = search(torch.clamp(drawn, min=t_unseen))
             use = torch.as_tensor(unseen.valid) & (torch.as_tensor(unseen.penalty) == 0)
             found = found.where(use, unseen)
         valid = torch.as_tensor(found.valid)
