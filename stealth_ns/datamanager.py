@@ -36,8 +36,8 @@ def dataset_image_names(data: Path, paths: Sequence[Path]) -> list[str]:
     """Image paths as users name views: relative to the dataset folder (``data``, a folder or its
     transforms file); images that live elsewhere (a seeded copy referring to a read-only
     dataset) relative to the parent of their common folder, e.g. ``images/0042.png``."""
-    base = Path(os.path.normpath(data if data.is_dir() else data.parent))
-    normal = [Path(os.path.normpath(p if p.is_absolute() else base / p)) for p in paths]
+    base = Path(os.path.abspath(data if data.is_dir() else data.parent))
+    normal = [Path(os.path.abspath(p)) for p in paths]  # as nerfstudio gives them: relative to the cwd
     if all(p.is_relative_to(base) for p in normal):
         return [str(p.relative_to(base)) for p in normal]
     folder = Path(os.path.commonpath([q.parent for q in normal]))

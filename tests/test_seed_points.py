@@ -276,7 +276,7 @@ def test_fox_real_capture(tmp_path: Path) -> None:
     assert summary.mean_error_px < 1.0
 
 
-def test_views_of_a_seeded_copy_keep_the_dataset_names(tmp_path):
+def test_views_of_a_seeded_copy_keep_the_dataset_names(tmp_path, monkeypatch):
     """A seeded --output copy refers to the read-only dataset's images by a relative path: views
     are still named ``images/0042.png``, not ``../../data/fox/images/0042.png``."""
     from stealth_ns.datamanager import dataset_image_names
@@ -292,3 +292,7 @@ def test_views_of_a_seeded_copy_keep_the_dataset_names(tmp_path):
     assert dataset_image_names(data / "transforms.json", inside) == ["images/0042.png", "images/0043.png"]
     outside = [copy / ".." / ".." / "data" / "fox" / "images" / n for n in names]
     assert dataset_image_names(copy / "transforms.json", outside) == ["images/0042.png", "images/0043.png"]
+    # --data given relative to the working directory, as the dataparser then gives the images
+    monkeypatch.chdir(tmp_path)
+    relative = [Path("data/fox/images") / n for n in names]
+    assert dataset_image_names(Path("data/fox"), relative) == ["images/0042.png", "images/0043.png"]
