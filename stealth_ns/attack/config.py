@@ -70,7 +70,8 @@ class AttackConfig(PrintableConfig):
     seeing cameras first. The paper's "low density = weakly constrained" made explicit. Measured
     (placement table in ``docs/attack.md``, 3000 lite iterations): ``kde`` keeps 0 of 815 poison
     Gaussians on the forward-facing ``facing`` scene (9.75 dB); ``view-aware`` succeeds on
-    ``orbit``, ``forward``, ``facing`` and the real ``fox`` capture."""
+    ``orbit`` (31.33 dB), ``facing`` (44.95), the real ``fox`` capture (38.66) and ``forward``'s
+    Easy view (36.56), not yet on its Median / Hard views (10.06 / 8.23 dB)."""
     visibility_margin: float = 0.05
     """``view-aware``: a point up to this fraction of the rendered depth behind a camera's surface
     still counts as seen by that camera."""
