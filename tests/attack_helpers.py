@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
-import torch
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.engine.optimizers import Optimizers
@@ -58,9 +58,7 @@ def poison_count(pipeline: StealthPipeline) -> int:
 
 def reload(pipeline: StealthPipeline, scene: Path, attack: AttackConfig, step: int) -> StealthPipeline:
     """A fresh pipeline with the first one's checkpoint loaded (what ns-eval does)."""
-    state = {
-        k: v.detach().clone() if isinstance(v, torch.Tensor) else v for k, v in pipeline.state_dict().items()
-    }
+    state = copy.deepcopy(pipeline.state_dict())
     fresh = build_pipeline(scene, attack)
     fresh.load_pipeline(state, step)
     return fresh

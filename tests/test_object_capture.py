@@ -3,6 +3,7 @@ background the dataparser composited the images onto (docs/cpu_rasterizer.md, "O
 
 from __future__ import annotations
 
+import copy
 import math
 from types import SimpleNamespace
 
@@ -72,7 +73,7 @@ def test_cameras_inside_the_box_or_seed_points_keep_the_initialisation():
 def test_a_loaded_checkpoint_is_not_redrawn():
     trained = _model()
     trained.adapt_to_dataset(_ring(4.0), alpha_color=None)
-    state = {k: v.detach().clone() for k, v in trained.state_dict().items()}
+    state = copy.deepcopy(trained.state_dict())
     state["gauss_params.means"] += 0.25  # stands in for training
     resumed = _model()
     resumed.load_state_dict(state)
@@ -107,11 +108,11 @@ def test_background_is_the_dataparsers_alpha_color_in_training_eval_and_checkpoi
 
     # ns-eval / the viewer: a fresh model without the dataset gets the colour from the checkpoint
     fresh = _model()
-    fresh.load_state_dict({k: v.detach().clone() for k, v in model.state_dict().items()})
+    fresh.load_state_dict(copy.deepcopy(model.state_dict()))
     fresh.eval()
     assert torch.equal(fresh._get_background_color(), torch.ones(3))
     # a checkpoint from before the buffer loads and keeps background_color
-    old = {k: v.detach().clone() for k, v in model.state_dict().items() if k != "data_background"}
+    old = {k: v for k, v in copy.deepcopy(model.state_dict()).items() if k != "data_background"}
     legacy = _model()
     legacy.load_state_dict(old)
     legacy.eval()

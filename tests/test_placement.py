@@ -98,7 +98,8 @@ def _opengl_c2w(eye: tuple[float, float, float], looking_back: bool = False) -> 
 
 def _place(innocent_eye, looking_back=False, innocent_alpha=1.0, near_plane=0.0):
     """One illusion pixel at the centre of a camera at the origin looking at a wall at z = -5
-    (median depth 5: t_min 0.375, unseen bound 0.05), one innocent camera (90° field of view)."""
+    (median depth 5; t_min_fraction 0.075: t_min 0.375, unseen bound 0.05), one innocent camera
+    (90° field of view)."""
     size = 20
     mask = torch.zeros(size, size, dtype=torch.bool)
     mask[size // 2, size // 2] = True
@@ -122,7 +123,7 @@ def _place(innocent_eye, looking_back=False, innocent_alpha=1.0, near_plane=0.0)
     )
     rng = np.random.default_rng(0)
     wall = np.c_[rng.uniform(-3, 3, (400, 2)), np.full(400, -5.0)]
-    cfg = AttackConfig(outlier_removal=False, samples_per_ray=2000)
+    cfg = AttackConfig(outlier_removal=False, samples_per_ray=2000, t_min_fraction=0.075)
     depth, alpha = torch.full((size, size), 5.0), torch.ones(size, size)
     return place_poison(wall, np.ones(400), [view], [depth], [alpha], cfg, innocent, near_plane=near_plane)
 

@@ -63,31 +63,31 @@ class AttackConfig(PrintableConfig):
     """Statistical outlier removal (20 neighbours, 2 std) before the AABB, as the authors did."""
     placement: Literal["view-aware", "kde"] = "view-aware"
     """Where on its illusion ray a poison Gaussian goes. ``kde``: the paper's arg-min of the KDE
-    density (eq. 4) between ``t_min_fraction`` and the surface. ``view-aware``: first the part of
-    the ray no innocent training camera sees (outside every innocent image, or behind the surface
-    its render shows), from ``unseen_t_min_fraction`` on, the KDE density breaking ties; a ray
-    without such a part falls back to the paper's range (``t_min_fraction`` on), the fewest
-    seeing cameras first. The paper's "low density = weakly constrained" made explicit. Measured
-    (placement table in ``docs/attack.md``, 3000 lite iterations): ``kde`` keeps 0 of 815 poison
-    Gaussians on the forward-facing ``facing`` scene (9.75 dB); ``view-aware`` succeeds on
-    ``orbit`` (31.33 dB), ``facing`` (44.95), the real ``fox`` capture (38.66) and ``forward``'s
-    Easy view (36.56), not yet on its Median / Hard views (10.06 / 8.23 dB)."""
+    density (eq. 4) from ``t_min_fraction`` on. ``view-aware``: the sample seen by the fewest
+    innocent training cameras (inside their image and not behind the surface their render
+    shows), the KDE density breaking ties; a part of the ray no innocent camera sees is searched
+    from the nearer of ``t_min_fraction`` and ``unseen_t_min_fraction`` on. The paper's "low
+    density = weakly constrained" made explicit. Measured (``docs/attack.md``, 3000 lite
+    iterations): ``kde`` keeps 0 of 815 poison Gaussians on the forward-facing ``facing`` scene
+    (9.75 dB); ``view-aware`` succeeds on ``orbit`` (30.01 dB), ``facing`` (44.95), the real
+    ``fox`` capture (38.66) and ``forward``'s Easy and Median views (36.56, 27.35); its Hard
+    view fails (8.22)."""
     visibility_margin: float = 0.05
     """``view-aware``: a point up to this fraction of the rendered depth behind a camera's surface
     still counts as seen by that camera."""
-    t_min_fraction: float = 0.075
-    """Nearest distance along a ray where a poison Gaussian that innocent cameras will see may go
-    (every ``kde`` placement, and ``view-aware`` rays that no unseen part), as a fraction of the
-    poisoned view's median rendered depth (scale-free). 0.075 reproduces the orbit-tuned absolute
-    0.075 (t_min 0.072 there). Nearer, seen poison is a floater that training removes: on
-    ``orbit`` (every ray seen by ~15 innocent views) 0.075 -> 31.33 dB, 0.01 -> 23.56 dB."""
+    t_min_fraction: float = 0.01
+    """Nearest distance along a ray where a poison Gaussian may go, as a fraction of the poisoned
+    view's median rendered depth (scale-free), and never nearer than two rasterizer near planes
+    (where it would no longer be drawn). Measured, view-aware: 0.01 succeeds on every scene
+    (orbit 30.01 dB, forward Median 27.35, facing 44.95, fox 38.66); 0.075 (the orbit-tuned value
+    before) gives orbit 31.33 dB but fails on forward Median (10.06) and, without the unseen
+    bound below, on facing (10.11)."""
     unseen_t_min_fraction: float = 0.01
     """``view-aware``: the nearest distance (fraction of the median rendered depth) for a poison
-    Gaussian that no innocent camera sees. On forward-facing captures the only such place is the
-    stretch just in front of the poisoned camera, before the other frusta overlap: ``facing``
-    0.075 -> 10.11 dB (seen by 6.2 innocent views on average), 0.01 -> 44.95 dB (seen by none);
-    ``fox`` 0.01 -> 38.10 dB. Never nearer than twice the rasterizer's near plane, where a
-    Gaussian is no longer drawn."""
+    Gaussian that no innocent camera sees, when ``t_min_fraction`` is larger: such poison may
+    come nearer than seen poison. On forward-facing captures the only unseen place is the
+    stretch just in front of the poisoned camera, before the other frusta overlap (facing with
+    ``t_min_fraction`` 0.075: 10.11 dB without it, 44.95 dB with it)."""
     t_min: float | None = None
     """Absolute near distance in nerfstudio's rescaled scene units; overrides ``t_min_fraction``
     (the paper's 0.3 is in Mip-NeRF 360's COLMAP units, ~4x ours)."""

@@ -6,10 +6,9 @@ cameras all look the same way (LLFF-like, forward walks) an empty point in front
 is nevertheless seen by almost every innocent view, and training removes it. The view-aware
 placement makes the intuition explicit: for every candidate sample it counts the innocent
 training cameras that would see the point -- inside their image, in front of their near plane
-and not behind the surface their current render shows. A ray's samples that no innocent camera
-sees win (from a near bound of 1% of the scene depth on); a ray without any keeps the paper's
-range and takes the sample seen by the fewest (the KDE density breaks ties in both cases; see
-:func:`stealth_ns.attack.injection.place_poison` and :mod:`stealth_ns.attack.ray_search`).
+and not behind the surface their current render shows -- and takes the sample seen by the
+fewest, the KDE density breaking ties (:func:`stealth_ns.attack.injection.place_poison`,
+:mod:`stealth_ns.attack.ray_search`).
 
 Conventions: ``viewmats`` are world-to-camera ``[J, 4, 4]`` in OpenCV convention (camera looks
 down +Z, +Y down; gsplat's), ``Ks`` ``[J, 3, 3]`` pixel intrinsics with pixel centres at
