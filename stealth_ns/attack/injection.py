@@ -2,10 +2,11 @@
 
 ``place_poison`` turns the current Gaussians plus the poisoned views into new Gaussians:
 opacity-weighted voxel density -> KDE -> for every illusion pixel, the best point on its ray
-up to the rendered depth: the least dense one from ``t_min`` on (``placement="kde"``, the
-paper), or (``placement="view-aware"``, :mod:`stealth_ns.attack.visibility`) the least dense
-point no innocent training camera sees from the nearer ``t_min_unseen`` on, and on rays
-without one the paper's range with the fewest seeing cameras first. ``append_gaussians`` then
+up to the rendered depth and never within two near planes of the camera: the least dense one
+from ``t_min`` on (``placement="kde"``, the paper), or (``placement="view-aware"``,
+:mod:`stealth_ns.attack.visibility`) the one seen by the fewest innocent training cameras, the
+density breaking ties; with ``t_min_fraction`` above ``unseen_t_min_fraction``, points no
+innocent camera sees are searched from the nearer bound. ``append_gaussians`` then
 grows the model's parameters, their Adam state and gsplat's densification state together.
 """
 
@@ -177,9 +178,10 @@ def place_poison(
         if penalty is not None:
             t_unseen = min(t_min, cfg.unseen_t_min_fraction * scene_depth)
             near_unseen[view.name] = t_unseen
-            unseen = search(torch.clamp(drawn, min=t_unseen))
-            use = torch.as_tensor(unseen.valid) & (torch.as_tensor(unseen.penalty) == 0)
-            found = found.where(use, unseen)
+            if t_unseen < t_min:  # equal bounds (the defaults): the first search already prefers unseen
+                unseen = search(torch.clamp(drawn, min=t_unseen))
+                use = torch.as_tensor(unseen.valid) & (torch.as_tensor(unseen.penalty) == 0)
+                found = found.where(use, unseen)
         valid = torch.as_tensor(found.valid)
         pts = torch.as_tensor(found.points)[valid]
         t = torch.as_tensor(found.t)[valid]
