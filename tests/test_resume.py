@@ -48,3 +48,11 @@ def test_resumed_attack_keeps_its_poison_and_record(tiny_orbit_scene, tmp_path):
     # the optimizer trained the rows the model renders: its moments have one row per Gaussian
     state = _checkpoint(resumed)["optimizers"]["means"]["state"]
     assert all(s["exp_avg"].shape[0] == n for s in state.values())
+
+    # resumed for one step without a refinement (step 45): it ends with the poison it stopped with
+    one_step = train_tiny(
+        tiny_orbit_scene, tmp_path, "one-step", *REFINE, "--pipeline.attack.injection-step", "20",
+        "--load-dir", str(first / "nerfstudio_models"), iterations=1,
+    ).parent  # fmt: skip
+    ended = _checkpoint(one_step)["pipeline"]["_model.gauss_params.poison"]
+    assert int((ended > 0.5).sum()) == tags_when_stopped
