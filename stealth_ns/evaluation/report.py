@@ -182,7 +182,7 @@ class RunPair:
                 differ.append(f"{label} {'images' if what == 'images' else 'camera poses'}")
         if differ:
             raise StealthNSError(
-                f"the runs were not trained on the same dataset: their {' and '.join(differ)} differ "
+                f"the runs were not trained on the same dataset: their {_listing(differ)} differ "
                 f"(poisoned run {self.poisoned.config_path}, data {self.poisoned.data}, "
                 f"{ours['train']['n_images']} training images; clean run {self.clean.config_path}, "
                 f"data {self.clean.data}, {theirs['train']['n_images']} training images)"
@@ -637,3 +637,8 @@ def render_html(report: dict[str, Any]) -> str:
         "</body></html>",
     ]
     return "\n".join(parts)
+
+
+def _listing(items: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
