@@ -61,7 +61,7 @@ def check_nerfstudio_data(config: FullImageDatamanagerConfig | None) -> None:
     from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 
     from stealth_ns.dataset_check import check_dataset
-    from stealth_ns.errors import StealthNSError
+    from stealth_ns.errors import StealthNSError, fail
 
     dataparser = getattr(config, "dataparser", None)
     if not isinstance(dataparser, NerfstudioDataParserConfig) or dataparser.data is None:
@@ -69,7 +69,7 @@ def check_nerfstudio_data(config: FullImageDatamanagerConfig | None) -> None:
     try:
         check_dataset(Path(dataparser.data), downscale_factor=dataparser.downscale_factor)
     except StealthNSError as err:
-        raise SystemExit(f"stealth-ns: error: {err}") from None
+        fail(err)
 
 
 @dataclass

@@ -22,7 +22,7 @@ from PIL import Image
 
 from stealth_ns.errors import StealthNSError
 
-__all__ = ["DatasetSummary", "check_dataset", "ply_vertex_count", "transforms_path"]
+__all__ = ["DatasetSummary", "check_dataset", "ply_vertex_count", "read_json_object", "transforms_path"]
 
 INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 """Camera parameters nerfstudio-data needs, globally or in every frame."""
@@ -61,6 +61,23 @@ def transforms_path(data: Path) -> Path:
     return data if data.suffix == ".json" else data / "transforms.json"
 
 
+def read_json_object(path: Path) -> dict[str, Any]:
+    """A transforms file's JSON object; StealthNSError naming the file if it is not one."""
+    try:
+        meta = json.loads(Path(path).read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise StealthNSError(f"{path} is not a text (JSON) file") from None
+    except json.JSONDecodeError as err:
+        raise StealthNSError(
+            f"{path} is not valid JSON: {err.msg} at line {err.lineno} column {err.colno}"
+        ) from None
+    except OSError as err:
+        raise StealthNSError(f"cannot read {path}: {err.strerror or type(err).__name__}") from None
+    if not isinstance(meta, dict):
+        raise StealthNSError(f"{path} must hold a JSON object, got a {type(meta).__name__}")
+    return meta
+
+
 def _load(path: Path) -> dict[str, Any]:
     if not path.parent.exists():
         raise StealthNSError(f"dataset folder {path.parent} does not exist")
@@ -68,16 +85,7 @@ def _load(path: Path) -> dict[str, Any]:
         raise StealthNSError(f"{path.parent} is neither a dataset folder nor a transforms JSON file")
     if not path.is_file():
         raise StealthNSError(f"{path} does not exist: not a nerfstudio-data dataset (transforms.json)")
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise StealthNSError(f"{path} is not a text (JSON) file") from None
-    except json.JSONDecodeError as err:
-        raise StealthNSError(
-            f"{path} is not valid JSON: {err.msg} at line {err.lineno} column {err.colno}"
-        ) from None
-    if not isinstance(meta, dict):
-        raise StealthNSError(f"{path} must hold a JSON object, got a {type(meta).__name__}")
+    meta = read_json_object(path)
     frames = meta.get("frames")
     if not isinstance(frames, list) or not frames:
         raise StealthNSError(f'{path} has no frames (a non-empty "frames" list)')

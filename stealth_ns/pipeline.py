@@ -39,7 +39,7 @@ from stealth_ns.attack.validation import validate_attack_config
 from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
 from stealth_ns.attack.visibility import CameraDepths
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager
-from stealth_ns.errors import StealthNSError
+from stealth_ns.errors import StealthNSError, fail
 from stealth_ns.fingerprint import record_fingerprint
 from stealth_ns.metrics import illusion_metrics, psnr
 from stealth_ns.model import NEAR_PLANE, POISON_TAG, StealthSplatModel, viewmat_from_c2w
@@ -53,11 +53,6 @@ class StealthPipelineConfig(VanillaPipelineConfig):
     _target: type = field(default_factory=lambda: StealthPipeline)
     attack: AttackConfig = field(default_factory=AttackConfig)
     """StealthAttack settings."""
-
-
-def fail(err: StealthNSError | str) -> None:
-    """Stop ns-train / ns-eval with a one-line message (no traceback)."""
-    raise SystemExit(f"stealth-ns: error: {err}")
 
 
 def resolve_illusion(cfg: AttackConfig) -> Illusion:
@@ -147,9 +142,7 @@ def _named_seed_point_file(datamanager: StealthDataManager) -> str | None:
         return None
     if not isinstance(ply, str):
         return None
-    ply_path = path.parent / ply
-    if not ply_path.is_file():
-        return f"the seed-point file {ply_path} (ply_file_path) does not exist"
+    ply_path = path.parent / ply  # its existence is checked at start-up (dataset_check)
     try:
         n = ply_vertex_count(ply_path)
     except StealthNSError as err:

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from stealth_ns.dataset_check import read_json_object
 from stealth_ns.errors import StealthNSError
 from stealth_ns.scenes.writer import write_ply
 
@@ -216,18 +217,6 @@ def make_seed_points(
 # --------------------------------------------------------------------------------------------
 
 
-def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise StealthNSError(f"cannot read {path}: {err.strerror or type(err).__name__}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise StealthNSError(f"{path} is not valid JSON ({err})") from None
-    if not isinstance(meta, dict):
-        raise StealthNSError(f"{path} is not a transforms file (expected a JSON object)")
-    return meta
-
-
 def _load_dataset(data: Path) -> _Dataset:
     """Parse ``data`` (folder or transforms JSON) into a :class:`_Dataset`."""
     if not data.exists():
@@ -334,7 +323,7 @@ def _selected(meta: dict, root: Path, frames: list[_Frame]) -> list[_Frame]:
 
 
 def _load_nerfstudio(path: Path) -> _Dataset:
-    meta = _read_json(path)
+    meta = read_json_object(path)
     raw = meta.get("frames")
     if not isinstance(raw, list) or not raw:
         raise StealthNSError(f"{path} has no frames")
@@ -371,7 +360,7 @@ def _load_blender(root: Path) -> _Dataset:
         path = root / f"transforms_{split}.json"
         if not path.is_file():
             continue
-        meta = _read_json(path)
+        meta = read_json_object(path)
         raw = meta.get("frames")
         if not isinstance(raw, list) or not raw:
             raise StealthNSError(f"{path} has no frames")
