@@ -3,9 +3,10 @@
 nerfstudio's parser meets a missing or malformed ``transforms.json``, a missing or truncated
 image, or a NaN in a pose with an assertion or a traceback deep inside data loading (a truncated
 image's error does not even name the file). :func:`check_dataset` reads the same things first --
-the transforms file parses and has frames; each frame's image exists and decodes (with PIL, as
-nerfstudio reads it); each ``transform_matrix`` is 4x4 and finite; the intrinsics are present and
-finite; the split lists name frames; a ``ply_file_path`` exists -- and raises
+the transforms file parses and has frames; each frame's image exists and decodes (with Pillow,
+through :mod:`stealth_ns.image_io`, as nerfstudio decodes it); each ``transform_matrix`` is 4x4
+and finite; the intrinsics are present and finite; the split lists name frames; a
+``ply_file_path`` exists -- and raises
 :class:`~stealth_ns.errors.StealthNSError` with one line for the first problem. The datamanager
 runs it at start-up (``ns-train``) and ``stealth-ns check-data --data DIR`` runs it on demand.
 """
@@ -18,9 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from PIL import Image
-
 from stealth_ns.errors import StealthNSError
+from stealth_ns.image_io import image_size, read_image
 
 __all__ = ["DatasetSummary", "check_dataset", "ply_vertex_count", "read_json_object", "transforms_path"]
 
@@ -97,19 +97,13 @@ def _finite(value: Any) -> bool:
 
 
 def _check_image(path: Path, where: str, decode: bool) -> tuple[int, int]:
-    if not path.is_file():
-        raise StealthNSError(f"{where}: image {path} does not exist")
-    try:
-        with Image.open(path) as im:
-            im.verify()  # structure and checksums without decoding (catches a cut-off PNG end)
-        with Image.open(path) as im:
-            size = im.size
-            if decode:
-                im.load()  # the pixels, as nerfstudio will read them (catches truncated data)
-    except Exception as err:  # PIL raises many types (UnidentifiedImageError, OSError, SyntaxError, ...)
-        reason = str(err).replace(str(path), "").strip(" :") or type(err).__name__
-        raise StealthNSError(f"{where}: image {path} cannot be read ({reason})") from None
-    return size
+    """``(width, height)`` of a frame's image: all its pixels decoded (a truncated file fails), or
+    without ``decode`` its header only."""
+    what = f"{where}: image"
+    if not decode:
+        return image_size(path, what)
+    image = read_image(path, what)
+    return int(image.shape[1]), int(image.shape[0])
 
 
 def ply_vertex_count(path: Path) -> int:
@@ -133,7 +127,7 @@ def ply_vertex_count(path: Path) -> int:
 def check_dataset(data: Path, decode: bool = True, downscale_factor: int | None = None) -> DatasetSummary:
     """Check the nerfstudio-data dataset ``data`` (a folder with ``transforms.json`` or the JSON file).
 
-    ``decode``: decode every image (else only its structure is verified). ``downscale_factor`` > 1:
+    ``decode``: decode every image (else only its header is read). ``downscale_factor`` > 1:
     an image may also be in ``images_N/`` as nerfstudio's parser looks there. Raises
     :class:`StealthNSError` with one line naming the file and the frame (index and ``file_path``).
     """

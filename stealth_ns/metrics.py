@@ -148,3 +148,21 @@ def illusion_metrics(pred, target, mask, lpips: LazyLPIPS | None = None) -> dict
             torch.from_numpy(crop_target).permute(2, 0, 1)[None],
         )
     return {"psnr": masked_psnr(pred, target, mask), "ssim": masked_ssim(pred, target, mask), "lpips": value}
+
+
+def v_illusory(per_view: dict[str, dict[str, float | None]]) -> dict[str, float | None]:
+    """V-illusory of a run: per metric (``psnr``, ``ssim``, ``lpips``) the mean over its poisoned views.
+
+    Args:
+        per_view: view name -> :func:`illusion_metrics` of that view.
+
+    Returns:
+        ``{"psnr": ..., "ssim": ..., "lpips": ...}``; a metric is None when any view lacks it (LPIPS
+        unavailable) or there is no view, never a mean over some of the views.
+    """
+    out: dict[str, float | None] = {}
+    for key in ("psnr", "ssim", "lpips"):
+        values = [metrics.get(key) for metrics in per_view.values()]
+        complete = bool(values) and all(v is not None for v in values)
+        out[key] = float(np.mean(values)) if complete else None
+    return out

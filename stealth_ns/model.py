@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -52,6 +53,7 @@ from pytorch_msssim import SSIM
 from torch import Tensor
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.gaussian_rows import append_rows
 from stealth_ns.metrics import LazyLPIPS
 from stealth_ns.raster import rasterization, resolve_backend
 
@@ -133,23 +135,7 @@ class StealthSplatModel(SplatfactoModel):
         self._fresh_random_init = not (self.seed_points is not None and not self.config.random_init)
         scales = torch.nn.Parameter(self._initial_log_scales(means.data))
         quats = torch.nn.Parameter(random_quat_tensor(n))
-        dim_sh = num_sh_bases(self.config.sh_degree)
-        has_colors = (
-            self.seed_points is not None and not self.config.random_init and self.seed_points[1].shape[0] > 0
-        )
-        if has_colors:
-            rgb = self.seed_points[1].float() / 255.0
-            shs = torch.zeros((n, dim_sh, 3))
-            if self.config.sh_degree > 0:
-                shs[:, 0, :3] = RGB2SH(rgb)
-            else:
-                CONSOLE.log("use color only optimization with sigmoid activation")
-                shs[:, 0, :3] = torch.logit(rgb, eps=1e-10)
-            features_dc = torch.nn.Parameter(shs[:, 0, :])
-            features_rest = torch.nn.Parameter(shs[:, 1:, :])
-        else:
-            features_dc = torch.nn.Parameter(torch.rand(n, 3))
-            features_rest = torch.nn.Parameter(torch.zeros((n, dim_sh - 1, 3)))
+        features_dc, features_rest = self._initial_features(n)
         opacities = torch.nn.Parameter(torch.logit(0.1 * torch.ones(n, 1)))
         self.gauss_params = torch.nn.ParameterDict(
             {
@@ -166,6 +152,8 @@ class StealthSplatModel(SplatfactoModel):
         # the dataparser's compositing colour (NaN: none); a buffer, so ns-eval and the viewer get it
         self.register_buffer("data_background", torch.full((3,), math.nan))
         self.render_filter: RenderFilter = "all"
+        #: Applied to the viewer's renders only (its render threads), set by the viewer's attack panel.
+        self.viewer_render_filter: RenderFilter = "all"
         self.camera_optimizer: CameraOptimizer = self.config.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -211,6 +199,24 @@ class StealthSplatModel(SplatfactoModel):
         )
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
         self._backend_for_device: dict[str, str] = {}
+
+    def _initial_features(self, n: int) -> tuple[torch.nn.Parameter, torch.nn.Parameter]:
+        """Splatfacto's initial colours: the seed points' RGB as SH degree 0 (a logit without SH), else
+        random; ``[n, 3]`` and ``[n, bases - 1, 3]``."""
+        dim_sh = num_sh_bases(self.config.sh_degree)
+        has_colors = (
+            self.seed_points is not None and not self.config.random_init and self.seed_points[1].shape[0] > 0
+        )
+        if not has_colors:
+            return torch.nn.Parameter(torch.rand(n, 3)), torch.nn.Parameter(torch.zeros((n, dim_sh - 1, 3)))
+        rgb = self.seed_points[1].float() / 255.0
+        shs = torch.zeros((n, dim_sh, 3))
+        if self.config.sh_degree > 0:
+            shs[:, 0, :3] = RGB2SH(rgb)
+        else:
+            CONSOLE.log("use color only optimization with sigmoid activation")
+            shs[:, 0, :3] = torch.logit(rgb, eps=1e-10)
+        return torch.nn.Parameter(shs[:, 0, :]), torch.nn.Parameter(shs[:, 1:, :])
 
     def _initial_log_scales(self, means: Tensor) -> Tensor:
         """Splatfacto's initial log-scales: the mean distance to the 3 nearest neighbours, [N, 3]."""
@@ -293,6 +299,51 @@ class StealthSplatModel(SplatfactoModel):
             yield
         finally:
             self.render_filter = previous
+
+    @torch.no_grad()
+    def append_gaussians(
+        self, means: Tensor, colors: Tensor, scales: Tensor, opacity: float, poison: bool = True
+    ) -> None:
+        """Append isotropic, axis-aligned Gaussians (e.g. the poison), keeping training state consistent.
+
+        Args:
+            means: ``[M, 3]`` centres, scene units.
+            colors: ``[M, 3]`` RGB in [0, 1] (stored as the degree-0 SH coefficient, or as a logit
+                without SH, as splatfacto stores colours).
+            scales: ``[M]`` standard deviation, scene units (stored as log-scales).
+            opacity: in (0, 1), the same for every new Gaussian (stored as a logit).
+            poison: the rows' poison tag.
+        """
+        n = means.shape[0]
+        colors = colors.clamp(0.0, 1.0)
+        rows = {
+            "means": means,
+            "scales": torch.log(scales.clamp(min=1e-7))[:, None].repeat(1, 3),
+            "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1),
+            "features_dc": RGB2SH(colors) if self.config.sh_degree > 0 else torch.logit(colors, eps=1e-4),
+            "features_rest": torch.zeros(n, num_sh_bases(self.config.sh_degree) - 1, 3),
+            "opacities": torch.full((n, 1), math.log(opacity / (1 - opacity))),
+            POISON_TAG: torch.full((n,), 1.0 if poison else 0.0),
+        }
+        device = self.gauss_params["means"].device
+        # before the first training step the model has no optimizers yet (rebind_optimizers catches up)
+        optimizers = getattr(self, "optimizers", None) or {}
+        append_rows(
+            self.gauss_params, optimizers, self.strategy_state, {k: v.to(device) for k, v in rows.items()}
+        )
+
+    @torch.no_grad()
+    def render_view(self, camera: Cameras, render_filter: RenderFilter = "all") -> dict[str, Tensor | list]:
+        """Render one camera as evaluation does (see :func:`render_camera`)."""
+        return render_camera(self, camera, render_filter)
+
+    def get_outputs_for_camera(self, camera: Cameras, obb_box: Any = None) -> dict[str, Tensor]:
+        """nerfstudio's entry point for the viewer and evaluation; in the viewer's render threads the
+        attack panel's filter (``viewer_render_filter``) applies, everywhere else ``render_filter``."""
+        if self.viewer_render_filter != "all" and _in_viewer_render_thread():
+            with self.filtered(self.viewer_render_filter):
+                return super().get_outputs_for_camera(camera, obb_box=obb_box)
+        return super().get_outputs_for_camera(camera, obb_box=obb_box)
 
     def step_cb(self, optimizers, step: int) -> None:
         """Splatfacto's before-iteration callback, plus an optimizer entry for the poison tag.
@@ -491,3 +542,32 @@ class StealthSplatModel(SplatfactoModel):
         if lpips is not None:
             metrics["lpips"] = lpips
         return metrics, {"img": torch.cat([gt_rgb, pred], dim=1)}
+
+
+def _in_viewer_render_thread() -> bool:
+    from nerfstudio.viewer.render_state_machine import RenderStateMachine
+
+    return isinstance(threading.current_thread(), RenderStateMachine)
+
+
+@torch.no_grad()
+def render_camera(
+    model: torch.nn.Module, camera: Cameras, render_filter: RenderFilter = "all"
+) -> dict[str, Any]:
+    """Render ``camera`` (one view) with ``model`` in eval mode, on the model's device.
+
+    Any nerfstudio model works (a clean run may be stock splatfacto); a ``render_filter`` other than
+    "all" needs a :class:`StealthSplatModel`. The model's train/eval mode and filter are restored after.
+
+    Returns:
+        The model's outputs: ``rgb`` ``[H, W, 3]`` in [0, 1], ``depth`` ``[H, W, 1]`` (z, scene units),
+        ``accumulation`` ``[H, W, 1]``, ...
+    """
+    was_training = model.training
+    model.eval()
+    try:
+        filtered = model.filtered(render_filter) if render_filter != "all" else contextlib.nullcontext()
+        with filtered:
+            return model.get_outputs(camera.to(model.device))
+    finally:
+        model.train(was_training)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -19,8 +18,8 @@ from typing import Any
 
 import numpy as np
 import torch
+from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
-from nerfstudio.models.splatfacto import RGB2SH, num_sh_bases
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 
@@ -32,18 +31,25 @@ from stealth_ns.attack.illusion import (
     composite,
     load_illusion,
     place_illusion,
-    save_png,
 )
-from stealth_ns.attack.injection import PoisonPlacement, PoisonView, append_gaussians, place_poison
+from stealth_ns.attack.injection import PoisonPlacement, place_poison
+from stealth_ns.attack.record import (
+    DENSITY_GRID_FILE,
+    INJECTION_FILES,
+    POISON_POINTS_FILE,
+    AttackRecord,
+    Injection,
+    PoisonView,
+)
 from stealth_ns.attack.validation import validate_attack_config
 from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
 from stealth_ns.attack.visibility import CameraDepths
-from stealth_ns.datamanager import NoiseSpec, StealthDataManager
+from stealth_ns.datamanager import NoiseSpec, StealthDataManager, dataset_image_names
 from stealth_ns.errors import StealthNSError, fail
 from stealth_ns.fingerprint import record_fingerprint
-from stealth_ns.metrics import illusion_metrics, psnr
-from stealth_ns.model import NEAR_PLANE, POISON_TAG, StealthSplatModel, viewmat_from_c2w
-from stealth_ns.viewer_panel import StealthAttackPanel
+from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
+from stealth_ns.model import NEAR_PLANE, StealthSplatModel, viewmat_from_c2w
+from stealth_ns.viewer import StealthAttackPanel
 
 
 @dataclass
@@ -184,8 +190,8 @@ class StealthPipeline(VanillaPipeline):
         super().__init__(config, device, *args, **kwargs)
         self.poison_views: list[PoisonView] = []
         self.attack_dir: Path | None = None
-        self.attack_record: dict[str, Any] = {}
-        self._restored_record: dict[str, Any] | None = None  # from a loaded checkpoint
+        self.record: AttackRecord | None = None  # set when training starts (or resumes)
+        self._restored_record: dict[str, Any] | None = None  # attack.json content, from a loaded checkpoint
         self._loaded_step = -1
         self.stealth_attack = StealthAttackPanel(self)  # the viewer's panel; inert without a viewer
         cfg = config.attack
@@ -226,12 +232,32 @@ class StealthPipeline(VanillaPipeline):
                 self.datamanager.train_dataparser_outputs,
                 self.datamanager.config.dataparser.data,
             )
-        cfg = self.config.attack
-        if not cfg.enabled or not self.poison_views:
+        if not self.config.attack.enabled or not self.poison_views:
             return callbacks
-        max_steps = attrs.trainer.config.max_num_iterations if attrs.trainer is not None else 30_000
         restored = self._restored_record
-        if restored is not None and restored.get("noise"):  # resumed: the original noise schedule
+        noise = self._start_poisoning(attrs, restored)
+        if attrs.trainer is not None:
+            self.attack_dir = Path(attrs.trainer.base_dir) / "attack"
+        if restored is not None:
+            self._continue_record(restored, attrs)
+        else:
+            self.record = AttackRecord(
+                config=dataclasses.asdict(self.config.attack),
+                views=self.poison_views,
+                injection_step=self.injection_step if self.config.attack.density_guided else None,
+                noise=None if noise is None else dataclasses.asdict(noise),
+            )
+            self._write_record(views=True)
+        return callbacks + self._injection_callbacks()
+
+    def _start_poisoning(
+        self, attrs: TrainingCallbackAttributes, restored: dict[str, Any] | None
+    ) -> NoiseSpec | None:
+        """Hand the datamanager the poisoned targets and the noise schedule (a resumed run: the original
+        one); stop with a one-line error when the injection step lies past the run's end."""
+        cfg = self.config.attack
+        max_steps = attrs.trainer.config.max_num_iterations if attrs.trainer is not None else 30_000
+        if restored is not None and restored.get("noise"):
             max_steps = int(restored["noise"]["total_steps"])
         if restored is None and cfg.density_guided and self.injection_step >= max_steps:  # injects nothing
             given = "" if cfg.injection_step is not None else " (None: the end of the model's warm-up)"
@@ -246,27 +272,11 @@ class StealthPipeline(VanillaPipeline):
                 targets[v.index] = _target_image(v, self.datamanager.cached_train[v.index]["image"])
         noise = NoiseSpec(cfg.noise_sigma0, cfg.noise_decay, max_steps, cfg.seed) if cfg.view_noise else None
         self.datamanager.set_poison(targets, noise)
-        if attrs.trainer is not None:
-            self.attack_dir = Path(attrs.trainer.base_dir) / "attack"
-        if restored is not None:
-            self._continue_record(restored, attrs)
-            return callbacks + self._injection_callbacks()
-        self.attack_record = {
-            "config": _jsonable(dataclasses.asdict(cfg)),
-            "poisoned_views": [
-                {"index": v.index, "name": v.name, "mask_pixels": int(v.mask.sum())}
-                for v in self.poison_views
-            ],
-            "injection_step": self.injection_step if cfg.density_guided else None,
-            "noise": None if noise is None else _jsonable(dataclasses.asdict(noise)),
-            "n_poison_gaussians": 0,
-        }
-        self._write_view_artifacts()
-        return callbacks + self._injection_callbacks()
+        return noise
 
     def _injection_callbacks(self) -> list[TrainingCallback]:
         """The injection, unless the record says it happened (a resumed run)."""
-        if not self.config.attack.density_guided or "injected_at_step" in self.attack_record:
+        if not self.config.attack.density_guided or (self.record is not None and self.record.injection):
             return []
         return [
             TrainingCallback(
@@ -279,7 +289,7 @@ class StealthPipeline(VanillaPipeline):
     # ------------------------------------------------------------------ checkpoints and resuming
     def get_extra_state(self) -> dict[str, str]:
         """Stored in every checkpoint: the attack record, which a resumed run continues."""
-        return {"attack_record": json.dumps(self.attack_record, sort_keys=True)}
+        return {"attack_record": "{}" if self.record is None else self.record.dumps()}
 
     def set_extra_state(self, state: Any) -> None:
         if isinstance(state, dict) and state.get("attack_record"):
@@ -294,7 +304,7 @@ class StealthPipeline(VanillaPipeline):
     def _continue_record(self, restored: dict[str, Any], attrs: TrainingCallbackAttributes) -> None:
         """A run resumed from a checkpoint (``--load-dir``): carry its record on, say where it
         resumed and with how many poison Gaussians, and copy its injection artifacts over."""
-        self.attack_record = restored
+        self.record = AttackRecord.from_json(restored, self.poison_views)
         resumed = {"step": self._loaded_step + 1, "poison_gaussians": int(self.model.poison_mask.sum())}
         load_dir = getattr(getattr(attrs.trainer, "config", None), "load_dir", None)
         if load_dir is not None:
@@ -302,29 +312,25 @@ class StealthPipeline(VanillaPipeline):
             previous = Path(load_dir).parent / "attack"
             if self.attack_dir is not None and previous.resolve() != self.attack_dir.resolve():
                 self.attack_dir.mkdir(parents=True, exist_ok=True)
-                for name in ("poison_points.ply", "density_grid.npz"):
+                for name in INJECTION_FILES:
                     if (previous / name).is_file() and not (self.attack_dir / name).exists():
                         shutil.copy2(previous / name, self.attack_dir / name)
-        self.attack_record.setdefault("resumed", []).append(resumed)
+        self.record.resumed.append(resumed)
         CONSOLE.log(
             f"stealth-ns: resumed at step {resumed['step']} "
             f"with {resumed['poison_gaussians']} poison Gaussians"
         )
-        self._write_view_artifacts()
+        self._write_record(views=True)
 
     # ------------------------------------------------------------------ injection
-    @torch.no_grad()
     def render_depths(self, indices: list[int]) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
         """Rendered z-depth [H, W] and opacity [H, W] of the current model at training views."""
         cameras = self.datamanager.train_dataset.cameras
-        was_training = self.model.training
-        self.model.eval()
         depths, alphas = [], []
         for index in indices:
-            out = self.model.get_outputs(cameras[index : index + 1].to(self.device))
+            out = self.model.render_view(cameras[index : index + 1])
             depths.append(out["depth"][..., 0].float().cpu())
             alphas.append(out["accumulation"][..., 0].float().cpu())
-        self.model.train(was_training)
         return depths, alphas
 
     def innocent_cameras(self) -> CameraDepths:
@@ -360,41 +366,26 @@ class StealthPipeline(VanillaPipeline):
                 f"t_max < t_min for every illusion pixel at step {step}: the rendered surface is nearer than "
                 f"t_min {placement.t_min}; lower --pipeline.attack.t-min-fraction or --pipeline.attack.t-min"
             )
-        device = model.means.device
-        dim_sh = num_sh_bases(model.config.sh_degree)
-        colors = placement.colors.clamp(0.0, 1.0)
-        features_dc = RGB2SH(colors) if model.config.sh_degree > 0 else torch.logit(colors, eps=1e-4)
-        rows = {
-            "means": placement.means,
-            "scales": torch.log(placement.scales.clamp(min=1e-7))[:, None].repeat(1, 3),
-            "quats": torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n_new, 1),
-            "features_dc": features_dc,
-            "features_rest": torch.zeros(n_new, dim_sh - 1, 3),
-            "opacities": torch.full((n_new, 1), math.log(cfg.poison_opacity / (1 - cfg.poison_opacity))),
-            POISON_TAG: torch.ones(n_new),
-        }
-        rows = {k: v.to(device) for k, v in rows.items()}
         n_before = model.num_points
-        append_gaussians(model.gauss_params, model.optimizers, model.strategy_state, rows)
+        model.append_gaussians(placement.means, placement.colors, placement.scales, cfg.poison_opacity)
         placement.timings["total_s"] = time.perf_counter() - t0
-        self.attack_record.update(
-            {
-                "injected_at_step": step,
-                "n_gaussians_before": n_before,
-                "n_poison_gaussians": n_new,
-                "poison_per_view": placement.per_view,
-                "invalid_rays_per_view": placement.invalid_rays,
-                "t_min_per_view": placement.t_min,
-                "t_min_unseen_per_view": placement.t_min_unseen,
-                "innocent_views_seeing_poison": placement.seen_by,
-                "poison_unseen_fraction": placement.unseen_fraction,
-                "density_grid": {
-                    "shape": list(placement.grid.shape),
-                    "voxel_size": placement.grid.voxel_size,
-                    "origin": [float(x) for x in placement.grid.origin],
-                },
-                "timings_s": placement.timings,
-            }
+        assert self.record is not None
+        self.record.injection = Injection(
+            injected_at_step=step,
+            n_gaussians_before=n_before,
+            n_poison_gaussians=n_new,
+            poison_per_view=placement.per_view,
+            invalid_rays_per_view=placement.invalid_rays,
+            t_min_per_view=placement.t_min,
+            t_min_unseen_per_view=placement.t_min_unseen,
+            innocent_views_seeing_poison=placement.seen_by,
+            poison_unseen_fraction=placement.unseen_fraction,
+            density_grid={
+                "shape": list(placement.grid.shape),
+                "voxel_size": placement.grid.voxel_size,
+                "origin": [float(x) for x in placement.grid.origin],
+            },
+            timings_s=placement.timings,
         )
         self._write_injection_artifacts(placement)
         CONSOLE.log(
@@ -409,40 +400,38 @@ class StealthPipeline(VanillaPipeline):
         """V-illusory (masked metrics of each poisoned-view render against I_ILL) and the PSNR of
         the innocent training views against their clean images.
 
-        Keys: ``v_illusory_{psnr,ssim,lpips}`` (means over poisoned views), the same with
-        ``[view name]`` per view, ``innocent_train_psnr``. When LPIPS is unavailable and
-        ``lpips_nulls`` is set, ``v_illusory_lpips`` is None and ``lpips_unavailable`` says why;
-        otherwise LPIPS keys are left out (training logs take floats only).
+        Keys: ``v_illusory_{psnr,ssim,lpips}`` (:func:`stealth_ns.metrics.v_illusory` over the poisoned
+        views), the same with ``[view name]`` per view, ``innocent_train_psnr``. When LPIPS is
+        unavailable and ``lpips_nulls`` is set, ``v_illusory_lpips`` is None and ``lpips_unavailable``
+        says why; otherwise keys without a value are left out (training logs take floats only).
         """
         cameras = self.datamanager.train_dataset.cameras
         model = self.model
-        was_training = model.training
-        model.eval()
-        results: dict[str, Any] = {}
-        sums = {"psnr": [], "ssim": [], "lpips": []}
+        per_view = {}
         for v in self.poison_views:
-            pred = model.get_outputs(cameras[v.index : v.index + 1].to(self.device))["rgb"].float().cpu()
-            for key, value in illusion_metrics(pred, v.target, v.mask, model.lpips_metric).items():
-                if value is not None:
-                    results[f"v_illusory_{key}[{v.name}]"] = value
-                    sums[key].append(value)
-        for key, values in sums.items():
-            if values:
-                results[f"v_illusory_{key}"] = float(np.mean(values))
-        if not sums["lpips"] and lpips_nulls:
-            results["v_illusory_lpips"] = None
+            pred = model.render_view(cameras[v.index : v.index + 1])["rgb"].float().cpu()
+            per_view[v.name] = illusion_metrics(pred, v.target, v.mask, model.lpips_metric)
+        results: dict[str, Any] = {
+            f"v_illusory_{key}[{name}]": value
+            for name, metrics in per_view.items()
+            for key, value in metrics.items()
+            if value is not None
+        }
+        for key, value in v_illusory(per_view).items():
+            if value is not None or (key == "lpips" and lpips_nulls):
+                results[f"v_illusory_{key}"] = value
+        if results.get("v_illusory_lpips", 0.0) is None:
             results["lpips_unavailable"] = model.lpips_metric.reason
         poisoned = {v.index for v in self.poison_views}
         innocent = []
         for index in range(len(cameras)):
-            if index in poisoned:
-                continue
-            clean = rgb_float(self.datamanager.cached_train[index]["image"])
-            pred = model.get_outputs(cameras[index : index + 1].to(self.device))["rgb"].float().cpu()
-            innocent.append(psnr(pred, clean))
+            if index not in poisoned:
+                clean = rgb_float(self.datamanager.cached_train[index]["image"])
+                innocent.append(
+                    psnr(model.render_view(cameras[index : index + 1])["rgb"].float().cpu(), clean)
+                )
         if innocent:
             results["innocent_train_psnr"] = float(np.mean(innocent))
-        model.train(was_training)
         return results
 
     def get_average_eval_image_metrics(
@@ -455,16 +444,24 @@ class StealthPipeline(VanillaPipeline):
             metrics.update(self.attack_metrics(lpips_nulls=step is None))
         return metrics
 
+    # ------------------------------------------------------------------ the viewer's interface
+    def split_views(self) -> dict[str, tuple[list[str], Cameras]]:
+        """``{"train": (names, cameras), "eval": (names, cameras)}``: every view by split, named as users
+        name views (relative to the dataset folder); what the viewer's attack panel lists."""
+        data = Path(self.datamanager.config.dataparser.data)
+        views = {}
+        for split, dataset in (
+            ("train", self.datamanager.train_dataset),
+            ("eval", self.datamanager.eval_dataset),
+        ):
+            if dataset is not None:
+                views[split] = (dataset_image_names(data, dataset.image_filenames), dataset.cameras)
+        return views
+
     # ------------------------------------------------------------------ artifacts
-    def _write_view_artifacts(self) -> None:
-        if self.attack_dir is None:
-            return
-        self.attack_dir.mkdir(parents=True, exist_ok=True)
-        for v in self.poison_views:
-            stem = f"view{v.index:04d}"
-            save_png(self.attack_dir / f"{stem}_target.png", v.target.numpy())
-            save_png(self.attack_dir / f"{stem}_mask.png", v.mask.numpy().astype(np.float32))
-        self._write_record()
+    def _write_record(self, views: bool = False) -> None:
+        if self.attack_dir is not None and self.record is not None:
+            self.record.write(self.attack_dir, views=views)
 
     def _write_injection_artifacts(self, placement: PoisonPlacement) -> None:
         if self.attack_dir is None:
@@ -473,20 +470,6 @@ class StealthPipeline(VanillaPipeline):
 
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(placement.means.double().numpy()))
         cloud.colors = o3d.utility.Vector3dVector(placement.colors.clamp(0, 1).double().numpy())
-        o3d.io.write_point_cloud(str(self.attack_dir / "poison_points.ply"), cloud)
-        placement.grid.save_npz(self.attack_dir / "density_grid.npz", extras={"kde": placement.kde.values})
+        o3d.io.write_point_cloud(str(self.attack_dir / POISON_POINTS_FILE), cloud)
+        placement.grid.save_npz(self.attack_dir / DENSITY_GRID_FILE, extras={"kde": placement.kde.values})
         self._write_record()
-
-    def _write_record(self) -> None:
-        assert self.attack_dir is not None
-        (self.attack_dir / "attack.json").write_text(json.dumps(self.attack_record, indent=2, sort_keys=True))
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj

@@ -28,10 +28,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
 from stealth_ns.dataset_check import read_json_object
 from stealth_ns.errors import StealthNSError
+from stealth_ns.image_io import image_info, image_size, read_image, save_png, split_alpha
 from stealth_ns.scenes.writer import write_ply
 
 __all__ = ["SeedPointsSummary", "make_seed_points"]
@@ -44,7 +44,8 @@ PYCOLMAP_HINT = "pip install 'pycolmap>=4.0,<5'"
 BLENDER_SPLITS = ("train", "val", "test")
 MIN_INLIERS = 15
 """Verified matches an image pair needs to take part in triangulation (COLMAP's default)."""
-LINKABLE_FORMATS = ("PNG", "JPEG", "BMP", "TIFF")
+LINKABLE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+"""Image files COLMAP reads as they are, when 8-bit grey or RGB; others are staged as RGB PNG copies."""
 
 
 @dataclass(frozen=True)
@@ -305,14 +306,6 @@ def _image_file(root: Path, file_path: str, where: str, blender: bool) -> Path:
     return path
 
 
-def _image_size(path: Path) -> tuple[int, int]:
-    try:
-        with Image.open(path) as im:
-            return im.size
-    except (OSError, ValueError) as err:
-        raise StealthNSError(f"cannot read image {path}: {err}") from None
-
-
 def _selected(meta: dict, root: Path, frames: list[_Frame]) -> list[_Frame]:
     """The training split (``train_filenames``) where the file declares one, else all frames."""
     if "train_filenames" not in meta:
@@ -343,7 +336,7 @@ def _load_nerfstudio(path: Path) -> _Dataset:
         except (TypeError, ValueError):
             raise StealthNSError(f"{where}: intrinsics must be numbers") from None
         cam = _camera(model, w, h, *intr, _distortion(meta if dist_fixed else fr), where)
-        size = _image_size(image)
+        size = image_size(image, f"{where}: image")
         if size != (w, h):
             raise StealthNSError(f"{where}: image {image} is {size[0]}x{size[1]} but the file says {w}x{h}")
         frames.append(_Frame(str(fr["file_path"]), image, c2w, cam))
@@ -376,7 +369,7 @@ def _load_blender(root: Path) -> _Dataset:
             where = f"{split} frame {fr['file_path']!r}"
             c2w = _pose(fr, where)
             image = _image_file(root, str(fr["file_path"]), where, blender=True)
-            w, h = _image_size(image)
+            w, h = image_size(image, f"{where}: image")
             fl = 0.5 * w / math.tan(0.5 * angle)
             cam = _Camera("PINHOLE", w, h, (fl, fl, w / 2.0, h / 2.0))
             rel = Path(os.path.relpath(image, root)).as_posix()
@@ -533,7 +526,7 @@ def _write_outputs(ds: _Dataset, plan: _Plan, xyz: np.ndarray, rgb: np.ndarray) 
     meta["ply_file_path"] = Path(os.path.relpath(plan.ply, plan.json.parent)).as_posix()
     try:
         plan.json.parent.mkdir(parents=True, exist_ok=True)
-        write_ply(plan.ply, xyz.astype(np.float32), rgb.astype(np.float64) / 255.0)
+        write_ply(plan.ply, xyz.astype(np.float32), rgb)
         tmp = plan.json.with_name(plan.json.name + ".tmp")
         tmp.write_text(json.dumps(meta, indent=4) + "\n", encoding="utf-8")
         os.replace(tmp, plan.json)
@@ -557,26 +550,25 @@ def _import_pycolmap():
 
 
 def _stage_images(frames: list[_Frame], folder: Path) -> list[str]:
-    """Put the images in ``folder`` as ``00000.png``, ...: links to RGB / grey PNG, JPEG, BMP and
-    TIFF files, RGB copies (transparency composited on white) of anything else."""
+    """Put the images in ``folder`` as ``00000.png``, ...: links to 8-bit grey / RGB PNG, JPEG, BMP
+    and TIFF files, RGB PNG copies (transparency composited on white) of anything else."""
     folder.mkdir()
     names = []
     for k, fr in enumerate(frames):
-        try:
-            with Image.open(fr.image) as im:
-                if im.format in LINKABLE_FORMATS and im.mode in ("RGB", "L"):
-                    name = f"{k:05d}{fr.image.suffix.lower()}"
-                    try:
-                        os.symlink(fr.image.resolve(), folder / name)
-                    except OSError:
-                        shutil.copyfile(fr.image, folder / name)
-                else:
-                    name = f"{k:05d}.png"
-                    rgba = im.convert("RGBA")
-                    white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-                    Image.alpha_composite(white, rgba).convert("RGB").save(folder / name, format="PNG")
-        except (OSError, ValueError) as err:
-            raise StealthNSError(f"cannot read image {fr.image}: {err}") from None
+        info = image_info(fr.image)
+        suffix = fr.image.suffix.lower()
+        if suffix in LINKABLE_SUFFIXES and info.dtype == np.uint8 and info.channels in (1, 3):
+            name = f"{k:05d}{suffix}"
+            try:
+                os.symlink(fr.image.resolve(), folder / name)
+            except OSError:
+                shutil.copyfile(fr.image, folder / name)
+        else:
+            name = f"{k:05d}.png"
+            rgb, alpha = split_alpha(read_image(fr.image))
+            if alpha is not None:
+                rgb = rgb * alpha[..., None] + (1.0 - alpha[..., None])
+            save_png(folder / name, rgb)
         names.append(name)
     return names
 
@@ -602,16 +594,29 @@ def _triangulate(frames: list[_Frame], seed: int) -> tuple[_Points, dict[str, in
         pycolmap.logging.minloglevel = old_level
 
 
-def _run_colmap(pycolmap, tqdm, frames: list[_Frame], work: Path, seed: int):
+def _run_colmap(
+    pycolmap, tqdm, frames: list[_Frame], work: Path, seed: int
+) -> tuple[_Points, dict[str, int]]:
+    """Stage the images in the scratch folder ``work``, then SIFT features, matching of every pair
+    and triangulation with the known poses; returns the points and the match statistics."""
     t = time.perf_counter()
     images = work / "images"
     names = _stage_images(frames, images)
     by_name = dict(zip(names, frames, strict=True))
     db_path = work / "database.db"
     pycolmap.set_random_seed(seed)
-    cpu = pycolmap.Device.cpu
+    db_images, n_kp = _extract_features(pycolmap, tqdm, db_path, images, by_name)
+    print(f"features: {n_kp} SIFT features in {len(names)} images ({time.perf_counter() - t:.1f} s)")
+    cameras, stats = _match_all_pairs(pycolmap, tqdm, db_path, work, db_images, seed)
+    points = _triangulate_known_poses(pycolmap, db_path, work, db_images, cameras, by_name, seed)
+    return points, {"keypoints": n_kp, **stats}
 
-    # features: one camera per image while extracting, then the known intrinsics
+
+def _extract_features(pycolmap, tqdm, db_path: Path, images: Path, by_name: dict[str, _Frame]):
+    """SIFT features of the staged images (file name -> frame), one camera per image while
+    extracting, then each image's known intrinsics; returns the database's images (by id) and the
+    number of keypoints."""
+    names = list(by_name)
     ext = pycolmap.FeatureExtractionOptions()
     ext.num_threads = 1
     with tqdm(total=len(names), desc="features", unit="img", leave=False) as bar:
@@ -622,7 +627,7 @@ def _run_colmap(pycolmap, tqdm, frames: list[_Frame], work: Path, seed: int):
                 image_names=chunk,
                 camera_mode=pycolmap.CameraMode.PER_IMAGE,
                 extraction_options=ext,
-                device=cpu,
+                device=pycolmap.Device.cpu,
             )
             bar.update(len(chunk))
     with pycolmap.Database.open(db_path) as db:
@@ -640,9 +645,13 @@ def _run_colmap(pycolmap, tqdm, frames: list[_Frame], work: Path, seed: int):
                 )
             )
         n_kp = int(db.num_keypoints())
-    print(f"features: {n_kp} SIFT features in {len(names)} images ({time.perf_counter() - t:.1f} s)")
+    return db_images, n_kp
 
-    # matching: every pair, in chunks for the progress bar; RANSAC seeded
+
+def _match_all_pairs(pycolmap, tqdm, db_path: Path, work: Path, db_images: list, seed: int):
+    """Match every image pair (in chunks, for the progress bar) with two-view verification, RANSAC
+    seeded; returns the database's cameras (by id) and ``{"pairs", "inliers"}`` of the pairs with at
+    least :data:`MIN_INLIERS` verified matches."""
     t = time.perf_counter()
     match = pycolmap.FeatureMatchingOptions()
     match.num_threads = 1
@@ -660,20 +669,26 @@ def _run_colmap(pycolmap, tqdm, frames: list[_Frame], work: Path, seed: int):
                 matching_options=match,
                 pairing_options=pairing,
                 verification_options=verify,
-                device=cpu,
+                device=pycolmap.Device.cpu,
             )
             bar.update(len(chunk))
     with pycolmap.Database.open(db_path) as db:
         geoms = db.read_two_view_geometries()[1]
         cameras = sorted(db.read_all_cameras(), key=lambda c: c.camera_id)
     good = [len(g.inlier_matches) for g in geoms if len(g.inlier_matches) >= MIN_INLIERS]
-    stats = {"keypoints": n_kp, "pairs": len(good), "inliers": int(sum(good))}
+    stats = {"pairs": len(good), "inliers": int(sum(good))}
     print(
         f"matching: {len(pairs)} pairs, {stats['pairs']} with >= {MIN_INLIERS} verified matches, "
         f"{stats['inliers']} matches ({time.perf_counter() - t:.1f} s)"
     )
+    return cameras, stats
 
-    # triangulation with the known poses (OpenGL camera-to-world -> OpenCV world-to-camera)
+
+def _triangulate_known_poses(
+    pycolmap, db_path: Path, work: Path, db_images: list, cameras: list, by_name: dict[str, _Frame], seed: int
+) -> _Points:
+    """Triangulate the verified matches with every image at its known pose (OpenGL camera-to-world
+    turned into OpenCV world-to-camera), bundle-adjusting the points only."""
     t = time.perf_counter()
     rec = pycolmap.Reconstruction()
     for cam in cameras:
@@ -690,7 +705,7 @@ def _run_colmap(pycolmap, tqdm, frames: list[_Frame], work: Path, seed: int):
     opts.triangulation.ignore_two_view_tracks = False
     (work / "sparse").mkdir()
     pycolmap.set_random_seed(seed)
-    out = pycolmap.triangulate_points(rec, db_path, images, work / "sparse", options=opts)
+    out = pycolmap.triangulate_points(rec, db_path, work / "images", work / "sparse", options=opts)
     ids = sorted(out.points3D)
     pts = [out.points3D[i] for i in ids]
     points = _Points(
@@ -704,4 +719,4 @@ def _run_colmap(pycolmap, tqdm, frames: list[_Frame], work: Path, seed: int):
         f"triangulation: {len(pts)} points, mean reprojection error {mean:.2f} px "
         f"({time.perf_counter() - t:.1f} s)"
     )
-    return points, stats
+    return points

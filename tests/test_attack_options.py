@@ -3,14 +3,20 @@ and the allowed range, before any data is loaded (issue 13, items 5 and 6)."""
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import inspect
 import math
+import typing
 from pathlib import Path
 
 import pytest
 from attack_helpers import build_pipeline
 
+from stealth_ns.attack import config as config_module
 from stealth_ns.attack.config import AttackConfig
+from stealth_ns.attack.illusion import BUILTIN_ILLUSIONS
+from stealth_ns.attack.noise_schedule import NOISE_DECAYS
 from stealth_ns.attack.validation import option_name, validate_attack_config
 from stealth_ns.errors import StealthNSError
 from stealth_ns.scenes.writer import write_ply
@@ -51,6 +57,37 @@ BAD_VALUES: dict[str, list] = {
 def test_every_option_has_bad_values():
     """A new AttackConfig field must get a rule in validation.py and an entry here."""
     assert set(BAD_VALUES) == {f.name for f in dataclasses.fields(AttackConfig)}
+
+
+def test_every_choice_of_a_choice_option_passes():
+    """A ``Literal`` option accepts exactly what the code behind it does: ``noise_decay`` every decay
+    of the noise schedule (``constant`` included), ``placement`` and ``tie_break`` their choices."""
+    hints = typing.get_type_hints(AttackConfig)
+    choices = {
+        f.name: typing.get_args(hints[f.name])
+        for f in dataclasses.fields(AttackConfig)
+        if typing.get_origin(hints[f.name]) is typing.Literal
+    }
+    assert set(choices) == {"placement", "tie_break", "noise_decay"}
+    assert choices["noise_decay"] == NOISE_DECAYS and "constant" in NOISE_DECAYS
+    for name, values in choices.items():
+        for value in values:
+            validate_attack_config(dataclasses.replace(AttackConfig(), **{name: value}))
+
+
+def test_illusion_help_lists_the_builtins():
+    """The ``--pipeline.attack.illusion`` help (the field's docstring, as tyro shows it) names every
+    built-in illusion."""
+    tree = ast.parse(inspect.getsource(config_module))
+    body = next(n for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name == "AttackConfig").body
+    index = next(
+        i
+        for i, n in enumerate(body)
+        if isinstance(n, ast.AnnAssign) and getattr(n.target, "id", "") == "illusion"
+    )
+    help_text = body[index + 1].value.value
+    assert all(f"``{name}``" in help_text for name in BUILTIN_ILLUSIONS), help_text
+    assert "stealth-ns illusions" not in help_text
 
 
 def test_defaults_and_edge_values_pass():
@@ -141,3 +178,20 @@ def test_missing_or_empty_seed_point_file_is_refused(tiny_orbit_scene, tmp_path,
     assert "\n" not in message and "sparse_pc.ply" in message, message
     assert ("does not exist" if case == "missing" else "has no points") in message, message
     assert "stealth-ns seed-points --data" in message
+
+
+def test_attack_package_loads_without_nerfstudio_and_its_config_without_torch():
+    """``stealth_ns.attack`` is pure math and settings: no module of it imports nerfstudio, and the
+    config (with the noise schedule whose ``NoiseDecay`` it uses) does not even import torch."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, importlib, pkgutil, stealth_ns.attack as a\n"
+        "import stealth_ns.attack.config\n"
+        "light = sorted(m for m in ('torch', 'nerfstudio') if m in sys.modules)\n"
+        "for m in pkgutil.iter_modules(a.__path__): importlib.import_module('stealth_ns.attack.' + m.name)\n"
+        "print(light, 'nerfstudio' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[] False"

@@ -19,7 +19,7 @@ from conftest import run_cli
 
 from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation import experiments, runs
-from stealth_ns.evaluation.experiments import make_plan, render_markdown, run_bench, table_data
+from stealth_ns.evaluation.experiments import bench_plan, render_markdown, run_bench, table_data
 from stealth_ns.evaluation.runs import TrainSpec, is_finished, run_status, train
 from stealth_ns.method_configs.attack_experiments import DEFAULT_SCENES, RUNS, TABLES, get_table
 
@@ -116,7 +116,7 @@ def test_dry_run_lists_the_runs_and_writes_nothing(tmp_path, capsys):
 
 def test_all_tables_share_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # no ../shared/data/fox here: the default scenes skip it
-    plan = make_plan(tmp_path, iterations=30)  # scenes absent: KDE views are placeholders
+    plan = bench_plan(tmp_path, iterations=30)  # scenes absent: KDE views are placeholders
     assert plan.scenes == ("orbit", "forward", "facing")
     assert plan.skipped_scenes == [
         "skipping fox: ../shared/data/fox not found (a dataset folder of the default --scenes; "
@@ -136,8 +136,8 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     assert len(settings) == len(RUNS) == 29  # orbit 17, forward / facing / fox 4 each
     easy = plan.get("forward/easy")
     assert "<EASY view of the KDE protocol>" in easy.spec.extra
-    assert len(make_plan(tmp_path, scenes=["orbit"], iterations=30).runs) == 17
-    assert [p.key for p in make_plan(tmp_path, tables=["2"], scenes=["forward"], iterations=30).runs] == [
+    assert len(bench_plan(tmp_path, scenes=["orbit"], iterations=30).runs) == 17
+    assert [p.key for p in bench_plan(tmp_path, tables=["2"], scenes=["forward"], iterations=30).runs] == [
         "forward/clean", "forward/easy", "forward/median", "forward/hard",
     ]  # fmt: skip
     # Table 1 and 2 columns: orbit, forward, facing, fox (Table 1: fox's Median view, like forward)
@@ -155,7 +155,7 @@ def test_kde_views_go_on_the_command_line(tmp_path, monkeypatch):
     (scene / "scene.json").write_text(json.dumps({"preset": "forward", "seed": 0}))
     ranking = SimpleNamespace(easy="frame_00003.png", median="frame_00020.png", hard="frame_00041.png")
     monkeypatch.setattr(difficulty, "rank_scene_views", lambda data: ranking)
-    plan = make_plan(tmp_path, tables=["1", "2"], scenes=["forward"], iterations=30)
+    plan = bench_plan(tmp_path, tables=["1", "2"], scenes=["forward"], iterations=30)
     assert plan.views["forward"] == {
         "easy": "frame_00003.png",
         "median": "frame_00020.png",
@@ -205,7 +205,7 @@ def test_second_invocation_reuses_finished_runs(tmp_path, fakes, capsys):
     )
 
     # Table 4 on the same output reuses orbit/clean and orbit/full (h = 7.5)
-    plan = make_plan(out, tables=["4"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    plan = bench_plan(out, tables=["4"], scenes=["orbit"], iterations=30, scene_options=TINY)
     assert {p.key: p.status for p in plan.runs if p.status == "finished"} == {
         "orbit/clean": "finished", "orbit/full": "finished",
     }  # fmt: skip
@@ -214,7 +214,7 @@ def test_second_invocation_reuses_finished_runs(tmp_path, fakes, capsys):
 def test_interrupted_run_is_retrained(tmp_path, fakes, capsys):
     out = tmp_path / "out"
     run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
-    plan = make_plan(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    plan = bench_plan(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
     gt_noise = plan.get("orbit/gt-noise").spec
     # an interrupted ns-train: folder, config and an early checkpoint, but no marker
     (gt_noise.run_dir / runs.MARKER).unlink()
@@ -357,7 +357,7 @@ def test_table_specs_are_consistent():
 def test_bad_input_is_an_error(tmp_path, kwargs, message):
     kwargs = {"iterations": 30, **kwargs}
     with pytest.raises(StealthNSError, match=message):
-        make_plan(tmp_path, **kwargs)
+        bench_plan(tmp_path, **kwargs)
 
 
 def test_cli_dry_run_and_one_line_errors(tmp_path):
@@ -545,9 +545,9 @@ def test_default_scenes_skip_a_missing_fox(tmp_path, monkeypatch, capsys):
     # named explicitly, a missing folder is an error
     for scenes in (["fox"], ["orbit", "fox=../shared/data/fox"]):
         with pytest.raises(StealthNSError, match=r"^scene fox: \.\./shared/data/fox not found$"):
-            make_plan(tmp_path, tables=["1"], scenes=scenes, iterations=30)
+            bench_plan(tmp_path, tables=["1"], scenes=scenes, iterations=30)
     # "all" is the default list: the missing folder is skipped
-    assert make_plan(tmp_path, tables=["1"], scenes=["all"], iterations=30).scenes == (
+    assert bench_plan(tmp_path, tables=["1"], scenes=["all"], iterations=30).scenes == (
         "orbit", "forward", "facing",
     )  # fmt: skip
 
@@ -567,7 +567,7 @@ def test_colmap_and_blender_folders(tmp_path, monkeypatch):
     ranked: list[Path] = []
     monkeypatch.setattr(difficulty, "rank_scene_views", lambda data: ranked.append(Path(data)) or ranking)
 
-    plan = make_plan(
+    plan = bench_plan(
         tmp_path / "out", tables=["1"], scenes=[f"garden={colmap}", f"lego={blender}"], iterations=30
     )
     assert plan.scenes == ("garden", "lego") and ranked == [colmap]  # lego has no seed points yet
@@ -622,7 +622,7 @@ def test_bad_scene_specs_are_one_line_errors(tmp_path, scenes, message):
     (tmp_path / "file").write_text("")
     paths = {**dirs, "missing": tmp_path / "nowhere", "file": tmp_path / "file"}
     with pytest.raises(StealthNSError, match=message) as err:
-        make_plan(tmp_path / "out", tables=["1"], scenes=[s.format(**paths) for s in scenes], iterations=30)
+        bench_plan(tmp_path / "out", tables=["1"], scenes=[s.format(**paths) for s in scenes], iterations=30)
     assert "\n" not in str(err.value)
     assert not (tmp_path / "out").exists()
 
@@ -660,7 +660,7 @@ def test_train_spec_paths_and_finished_semantics(tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_real_tiny_training_is_finished_then_reused(tiny_orbit_scene, tmp_path):
     """The runner's ns-train command for the full attack, on the tiny scene, for 30 iterations."""
-    plan = make_plan(tmp_path, tables=["6"], scenes=["orbit"], iterations=30)
+    plan = bench_plan(tmp_path, tables=["6"], scenes=["orbit"], iterations=30)
     full = plan.get("orbit/full").spec
     spec = TrainSpec(**{**full.__dict__, "scene": tiny_orbit_scene})
     record = train(spec, stream=False)

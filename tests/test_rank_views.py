@@ -40,11 +40,23 @@ def blob_grid(centre=(0.0, 0.0, -1.0), sigma: float = 0.3) -> DensityGrid:
     return grid.with_values(np.exp(-r2 / (2 * sigma**2)))
 
 
-def test_defaults_are_the_attacks():
+def test_defaults_are_the_attacks_and_stay_light():
+    """The protocol's KDE defaults come from AttackConfig, whose import loads neither nerfstudio
+    nor torch (so ``stealth-ns rank-views`` starts fast)."""
+    import subprocess
+    import sys
+
     from stealth_ns.attack.config import AttackConfig
 
-    assert difficulty.DEFAULT_GRID_RESOLUTION == AttackConfig.grid_resolution
-    assert difficulty.DEFAULT_BANDWIDTH == AttackConfig.bandwidth
+    assert difficulty.DEFAULT_GRID_RESOLUTION == AttackConfig().grid_resolution
+    assert difficulty.DEFAULT_BANDWIDTH == AttackConfig().bandwidth
+    assert difficulty.RankViews.bandwidth == AttackConfig().bandwidth
+    code = (
+        "import sys, stealth_ns.evaluation.difficulty, stealth_ns.attack.config; "
+        "print(sorted(m for m in ('torch', 'nerfstudio') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
 
 
 def test_frustum_samples_lie_in_the_fov_and_radius():

@@ -13,6 +13,7 @@ import pytest
 from PIL import Image
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.image_io import image_size, read_image, to_float32
 from stealth_ns.scenes import make_scene
 from stealth_ns.scenes.geometry import Geometry, cast_rays
 from stealth_ns.scenes.writer import MANIFEST, read_ply
@@ -38,7 +39,7 @@ def forward_scene(tmp_path_factory) -> Path:
 def _load(scene: Path):
     """transforms.json, images (V, H, W, 3) float [0, 1], depths (V, H, W), ply xyz, rgb float."""
     meta = json.loads((scene / "transforms.json").read_text())
-    images = np.stack([np.asarray(Image.open(scene / f["file_path"])) for f in meta["frames"]]) / 255.0
+    images = np.stack([to_float32(read_image(scene / f["file_path"])) for f in meta["frames"]])
     depths = np.stack([np.load(scene / f["depth_file_path"]) for f in meta["frames"]])
     xyz, rgb = read_ply(scene / meta["ply_file_path"])
     return meta, images, depths, xyz.astype(np.float64), rgb / 255.0
@@ -139,7 +140,7 @@ def test_layout_and_summary(tmp_path):
     assert frame["file_path"] == "images/frame_00003.png"
     assert frame["depth_file_path"] == "depths/frame_00003.npy"
     assert np.asarray(frame["transform_matrix"]).shape == (4, 4)
-    img = Image.open(out / frame["file_path"])
+    img = Image.open(out / frame["file_path"])  # what nerfstudio decodes: an 8-bit RGB PNG
     assert (img.mode, img.size) == ("RGB", (32, 24))
     depth = np.load(out / frame["depth_file_path"])
     assert depth.dtype == np.float32 and depth.shape == (24, 32) and depth.max() > 0
@@ -275,10 +276,7 @@ def test_same_seed_gives_identical_files(tmp_path):
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     for i in range(8):
         name = f"images/frame_{i:05d}.png"
-        assert (
-            np.abs(np.asarray(Image.open(a / name), float) - np.asarray(Image.open(c / name), float)).mean()
-            > 10
-        )
+        assert np.abs(read_image(a / name).astype(float) - read_image(c / name).astype(float)).mean() > 10
 
 
 # --------------------------------------------------------------------------------------------
@@ -517,10 +515,10 @@ def object_scene(tmp_path_factory) -> Path:
 def _blender_split(scene: Path, split: str):
     """transforms, RGBA images (V, H, W, 4) float [0, 1], depths (V, H, W), c2w (V, 4, 4)."""
     meta = json.loads((scene / f"transforms_{split}.json").read_text())
-    images = np.stack([np.asarray(Image.open(scene / (f["file_path"][2:] + ".png"))) for f in meta["frames"]])
+    images = np.stack([to_float32(read_image(scene / (f["file_path"][2:] + ".png"))) for f in meta["frames"]])
     depths = np.stack([np.load(scene / f["depth_file_path"]) for f in meta["frames"]])
     c2w = np.stack([np.asarray(f["transform_matrix"], dtype=np.float64) for f in meta["frames"]])
-    return meta, images / 255.0, depths, c2w
+    return meta, images, depths, c2w
 
 
 def _pixel_rays(width: int, height: int, angle_x: float, c2w: np.ndarray) -> np.ndarray:
@@ -554,7 +552,7 @@ def test_object_layout_and_cameras(object_scene):
         assert sorted(p.name for p in (object_scene / split).iterdir()) == sorted(
             f"r_{k}.png" for k in range(n)
         )
-        img = Image.open(object_scene / split / "r_0.png")
+        img = Image.open(object_scene / split / "r_0.png")  # as nerfstudio decodes it: 8-bit RGBA
         assert (img.mode, img.size) == ("RGBA", (48, 48))
         assert depths.dtype == np.float32 and depths.shape == (n, 48, 48)
         # cameras at radius 4 looking at the origin, on the upper hemisphere (Blender: +Z up)
@@ -627,7 +625,7 @@ def test_blender_dataparser_loads_object(object_scene, split, count):
 def test_object_summary_default_resolution_and_overwrite(tmp_path):
     out = tmp_path / "obj"
     summary = make_scene("object", out, views=8, seed=4)  # default resolution: square 128x128
-    assert Image.open(out / "train" / "r_0.png").size == (128, 128)
+    assert image_size(out / "train" / "r_0.png") == (128, 128)
     assert (summary.n_train, summary.n_val, summary.n_test, summary.n_points) == (6, 1, 1, 0)
     text = str(summary)
     assert "6 train / 1 val / 1 test" in text and "128x128" in text and "no seed points" in text
@@ -651,9 +649,9 @@ def test_cli_make_scene_new_presets(tmp_path):
     from stealth_ns.cli import main
 
     main(["make-scene", "--preset", "object", "--output", str(tmp_path / "o"), "--views", "8"])
-    assert Image.open(tmp_path / "o" / "test" / "r_0.png").size == (128, 128)
+    assert image_size(tmp_path / "o" / "test" / "r_0.png") == (128, 128)
     main(["make-scene", "--preset", "facing", "--output", str(tmp_path / "f"), "--views", "8"])
-    assert Image.open(tmp_path / "f" / "images" / "frame_00000.png").size == (128, 96)
+    assert image_size(tmp_path / "f" / "images" / "frame_00000.png") == (128, 96)
 
 
 @pytest.mark.parametrize("preset", ["facing", "object"])

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
 
 from stealth_ns import seed_points
 from stealth_ns.errors import StealthNSError
+from stealth_ns.image_io import read_image, save_png
 from stealth_ns.scenes import make_scene
 from stealth_ns.scenes.writer import read_ply
 from stealth_ns.seed_points import SeedPointsSummary, make_seed_points
@@ -165,9 +165,9 @@ def test_blender_folder(scene: Path, tmp_path: Path) -> None:
         frames = []
         for k, i in enumerate(idx):
             fr = meta["frames"][i]
-            rgb = np.asarray(Image.open(scene / fr["file_path"]).convert("RGB"))
+            rgb = read_image(scene / fr["file_path"])
             alpha = np.where(np.load(scene / fr["depth_file_path"]) > 0, 255, 0).astype(np.uint8)
-            Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(blender / split / f"r_{k}.png")
+            save_png(blender / split / f"r_{k}.png", np.dstack([rgb, alpha]))
             frames.append({"file_path": f"./{split}/r_{k}", "transform_matrix": fr["transform_matrix"]})
         doc = {"camera_angle_x": angle, "frames": frames}
         (blender / f"transforms_{split}.json").write_text(json.dumps(doc))
@@ -192,7 +192,7 @@ def _tiny_dataset(folder: Path, n: int = 3) -> Path:
     (folder / "images").mkdir()
     frames = []
     for i in range(n):
-        Image.fromarray(np.full((48, 64, 3), 128, np.uint8)).save(folder / "images" / f"{i}.png")
+        save_png(folder / "images" / f"{i}.png", np.full((48, 64, 3), 128, np.uint8))
         c2w = np.eye(4)
         c2w[0, 3] = 0.1 * i
         frames.append({"file_path": f"images/{i}.png", "transform_matrix": c2w.tolist()})

@@ -37,6 +37,8 @@ import yaml
 from conftest import train_tiny
 from scipy import ndimage
 
+from stealth_ns.attack.record import AttackRecord
+
 pytestmark = pytest.mark.slow
 
 BIN = Path(sys.executable).parent
@@ -238,16 +240,12 @@ def image_samples(frame: np.ndarray, mask: np.ndarray, fy: float, cx: float, cy:
 def test_panel_in_chromium_jumps_and_filters(page, run_config: Path):
     from PIL import Image
 
-    run_dir = run_config.parent
-    record = json.loads((run_dir / "attack" / "attack.json").read_text())
-    poisoned = record["poisoned_views"][0]
-    stem = run_dir / "attack" / f"view{poisoned['index']:04d}"
-    target = np.asarray(Image.open(f"{stem}_target.png").convert("RGB"), dtype=np.float32) / 255.0
-    mask = np.asarray(Image.open(f"{stem}_mask.png").convert("L")) > 127
+    view = AttackRecord.read(run_config.parent / "attack").views[0]
+    target, mask = view.target.numpy(), view.mask.numpy()
     inner = ndimage.binary_erosion(mask, iterations=1)  # away from the illusion's edge
     data = Path(yaml.load(run_config.read_text(), Loader=yaml.Loader).pipeline.datamanager.dataparser.data)
     transforms = json.loads((data / "transforms.json").read_text())
-    clean = np.asarray(Image.open(data / poisoned["name"]).convert("RGB"), dtype=np.float32) / 255.0
+    clean = np.asarray(Image.open(data / view.name).convert("RGB"), dtype=np.float32) / 255.0
     ratio = mask.shape[0] / transforms["h"]  # in case the dataparser downscaled the images
     fy, cx, cy = (transforms[k] * ratio for k in ("fl_y", "cx", "cy"))
     shots = (
@@ -258,10 +256,10 @@ def test_panel_in_chromium_jumps_and_filters(page, run_config: Path):
     page.get_by_text("Jump to view", exact=True).wait_for()
     wait_for(lambda: re.search(r"Resolution: [1-9]\d*\D[1-9]\d*px", panel_text(page)), 90, "a first render")
     wait_for(lambda: looks_rendered(canvas_frame(page)), 90, "a rendered frame on the canvas")
-    assert f"Poisoned:\n{poisoned['name']}" in panel_text(page) or poisoned["name"] in panel_text(page)
+    assert f"Poisoned:\n{view.name}" in panel_text(page) or view.name in panel_text(page)
 
     # jump to the poisoned view: its role, the masked-PSNR read-out, and the illusion on screen
-    choose(page, "Jump to view", f"poisoned: {poisoned['name']}")
+    choose(page, "Jump to view", f"poisoned: {view.name}")
     page.get_by_text("poisoned training view", exact=False).wait_for()
     psnr_text = wait_for(
         lambda: re.search(r"masked PSNR vs illusion: ([\d.]+) dB \(poison shown", panel_text(page)),
@@ -292,7 +290,7 @@ def test_panel_in_chromium_jumps_and_filters(page, run_config: Path):
     page.get_by_label("Jump to view", exact=True).click()
     options = page.get_by_role("option").all_inner_texts()
     innocents = sorted(o for o in options if o.startswith("innocent: "))
-    after = [o for o in innocents if o.split(": ", 1)[1] > poisoned["name"]]  # the next view along the path
+    after = [o for o in innocents if o.split(": ", 1)[1] > view.name]  # the next view along the path
     page.get_by_role("option", name=(after or innocents)[0], exact=True).click()
     page.get_by_text("innocent training view", exact=False).wait_for()
     wait_for(lambda: "Camera on innocent view" in panel_text(page), 90, "the read-out on the innocent view")
@@ -306,7 +304,7 @@ def test_panel_in_chromium_jumps_and_filters(page, run_config: Path):
 
     # overlays, seen from a little behind the poisoned camera with the frusta hidden (their images would
     # cover it): the poison centres (magenta) just in front of the poisoned camera, then the KDE's core
-    choose(page, "Jump to view", f"poisoned: {poisoned['name']}")
+    choose(page, "Jump to view", f"poisoned: {view.name}")
     wait_for(
         lambda: "Camera on poisoned view" in panel_text(page), 90, "the camera back on the poisoned view"
     )

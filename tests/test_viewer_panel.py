@@ -1,5 +1,6 @@
 """The viewer panel's logic without a browser: view lists, camera jumps, view matching, overlays, the
-render filter, the PSNR read-out, and the glue on a real (client-less) viser server."""
+render filter, the PSNR read-out, and the glue on a real (client-less) viser server, fed by a fake pipeline
+that satisfies the panel's Protocol (and one check that the real pipeline does too)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import math
 import socket
 import threading
 import time
+import typing
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -22,28 +24,25 @@ from nerfstudio.viewer.render_state_machine import RenderStateMachine
 from nerfstudio.viewer.utils import get_camera
 from nerfstudio.viewer.viewer import VISER_NERFSTUDIO_SCALE_RATIO, Viewer
 
+from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid
-from stealth_ns.attack.illusion import save_png
+from stealth_ns.attack.record import PoisonView
+from stealth_ns.image_io import save_png
 from stealth_ns.metrics import masked_psnr
 from stealth_ns.model import POISON_TAG, viewmat_from_c2w
-from stealth_ns.viewer_panel import (
-    FILTER_OPTIONS,
-    NO_VIEW,
+from stealth_ns.viewer import FILTER_OPTIONS, NO_VIEW, PanelModel, PanelSource, StealthAttackPanel
+from stealth_ns.viewer.overlays import kde_voxel_cloud, poison_centres
+from stealth_ns.viewer.poses import (
     VISER_SCALE,
-    PanelError,
-    StealthAttackPanel,
     apply_camera_jump,
-    build_view_entries,
     c2w_from_viser_pose,
     camera_jump,
-    display_names,
     frustum_spec,
-    kde_voxel_cloud,
-    load_attack_views,
     match_view,
-    poison_centres,
     viser_pose_from_c2w,
 )
+from stealth_ns.viewer.scene import CENTRES_NODE, KDE_NODE, frustum_node
+from stealth_ns.viewer.views import build_view_entries
 
 
 def look_at_c2w(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -83,15 +82,6 @@ def test_view_entries_roles_order_and_labels():
     assert NO_VIEW not in {e.label for e in entries}
     with pytest.raises(ValueError, match="out of range"):
         build_view_entries(train, [], poisoned=[4])
-
-
-def test_display_names_relative_to_dataset(tmp_path):
-    base = tmp_path / "scene"
-    paths = [base / "images" / "f0.png", base / "images" / "f1.png", tmp_path / "other" / "x.png"]
-    assert display_names(paths, base) == ["images/f0.png", "images/f1.png", "x.png"]
-    assert display_names(paths, base / "transforms.json") == ["images/f0.png", "images/f1.png", "x.png"]
-    clash = [tmp_path / "a" / "f.png", tmp_path / "b" / "f.png"]
-    assert display_names(clash) == [str(p) for p in clash]
 
 
 # ----------------------------------------------------------------------------------------------- poses
@@ -227,6 +217,8 @@ def test_kde_voxel_cloud_threshold_colours_and_cap():
 
 # ----------------------------------------------------------------------------------------------- attack data
 def write_attack_dir(attack_dir: Path, index: int, name: str, height: int = 32, width: int = 48) -> tuple:
+    """An attack record as the first version wrote it (no cameras in the JSON, 8-bit PNGs): the panel must
+    hand ``AttackRecord.read`` the training cameras."""
     rng = np.random.default_rng(index)
     target = rng.random((height, width, 3)).astype(np.float32)
     mask = np.zeros((height, width), bool)
@@ -236,22 +228,6 @@ def write_attack_dir(attack_dir: Path, index: int, name: str, height: int = 32, 
     record = {"poisoned_views": [{"index": index, "name": name, "mask_pixels": int(mask.sum())}]}
     (attack_dir / "attack.json").write_text(json.dumps(record))
     return np.round(target * 255) / 255, mask
-
-
-def test_load_attack_views(tmp_path):
-    target, mask = write_attack_dir(tmp_path, 3, "images/f3.png")
-    (view,) = load_attack_views(tmp_path)
-    assert (view.index, view.name) == (3, "images/f3.png")
-    np.testing.assert_allclose(view.target, target, atol=1e-6)
-    np.testing.assert_array_equal(view.mask, mask)
-    with pytest.raises(PanelError, match="no attack record"):
-        load_attack_views(tmp_path / "missing")
-    (tmp_path / "view0003_mask.png").unlink()
-    with pytest.raises(PanelError, match="missing target/mask"):
-        load_attack_views(tmp_path)
-    (tmp_path / "attack.json").write_text("{")
-    with pytest.raises(PanelError, match="cannot read"):
-        load_attack_views(tmp_path)
 
 
 # ----------------------------------------------------------------------------------------------- the panel
@@ -264,19 +240,27 @@ def tagged_model(n_points: int = 300):
     return model
 
 
-def fake_pipeline(tmp_path: Path, model, n_train: int = 6, n_eval: int = 2, poison_views=()):
-    data = tmp_path / "scene"
-    cams = orbit_cameras(n_train + n_eval)
-    train = SimpleNamespace(
-        cameras=cams[:n_train], image_filenames=[data / "images" / f"f{i}.png" for i in range(n_train)]
-    )
-    evals = SimpleNamespace(
-        cameras=cams[n_train:], image_filenames=[data / "images" / f"t{i}.png" for i in range(n_eval)]
-    )
-    dm = SimpleNamespace(
-        config=SimpleNamespace(dataparser=SimpleNamespace(data=data)), train_dataset=train, eval_dataset=evals
-    )
-    return SimpleNamespace(datamanager=dm, model=model, poison_views=list(poison_views), attack_dir=None)
+class FakeSource:
+    """A pipeline as the panel sees it (:class:`PanelSource`): ``n_train`` training and ``n_eval`` held-out
+    views on an orbit, named as users name them."""
+
+    def __init__(self, model, n_train: int = 6, n_eval: int = 2, poison_views=(), attack_dir=None) -> None:
+        cams = orbit_cameras(n_train + n_eval)
+        self.model = model
+        self.attack_dir: Path | None = attack_dir
+        self.poison_views: list[PoisonView] = list(poison_views)
+        self.train_cameras, self.eval_cameras = cams[:n_train], cams[n_train:]
+        self.train_names = [f"images/f{i}.png" for i in range(n_train)]
+        self.eval_names = [f"images/t{i}.png" for i in range(n_eval)]
+
+    def split_views(self) -> dict[str, tuple[list[str], Cameras]]:
+        return {"train": (self.train_names, self.train_cameras), "eval": (self.eval_names, self.eval_cameras)}
+
+
+def test_fake_source_satisfies_the_protocol():
+    source = FakeSource(tagged_model(30))
+    assert isinstance(source, PanelSource) and isinstance(source.model, PanelModel)
+    assert not isinstance(SimpleNamespace(model=source.model, attack_dir=None), PanelSource)
 
 
 def free_port() -> int:
@@ -292,7 +276,7 @@ def server():
     srv.stop()
 
 
-def set_up_panel(pipeline, server, run_dir: Path) -> StealthAttackPanel:
+def set_up_panel(pipeline: PanelSource, server, run_dir: Path) -> StealthAttackPanel:
     panel = StealthAttackPanel(pipeline)
     panel.install(server)
     viewer = SimpleNamespace(
@@ -301,7 +285,7 @@ def set_up_panel(pipeline, server, run_dir: Path) -> StealthAttackPanel:
         train_lock=threading.Lock(),
         config=SimpleNamespace(camera_frustum_scale=0.1),
         camera_handles={
-            i: SimpleNamespace(visible=True) for i in range(len(pipeline.datamanager.train_dataset.cameras))
+            i: SimpleNamespace(visible=True) for i in range(len(pipeline.split_views()["train"][1]))
         },
         hide_images=SimpleNamespace(visible=True),  # nerfstudio's "Hide Train Cams" button: cams shown
         current_camera_idx=0,
@@ -330,7 +314,7 @@ def render_in_viewer_thread(model, cam) -> torch.Tensor:
 
 def test_render_filter_applies_to_viewer_renders_only(tmp_path, server):
     model = tagged_model()
-    panel = set_up_panel(fake_pipeline(tmp_path, model), server, tmp_path / "run")
+    panel = set_up_panel(FakeSource(model), server, tmp_path / "run")
     cam = camera(width=48, height=32)
 
     def direct(render_filter: str) -> torch.Tensor:
@@ -346,7 +330,7 @@ def test_render_filter_applies_to_viewer_renders_only(tmp_path, server):
         deadline = time.time() + 5
         while panel.render_filter != render_filter and time.time() < deadline:
             time.sleep(0.01)
-        assert panel.render_filter == render_filter
+        assert panel.render_filter == render_filter == model.viewer_render_filter
         with torch.no_grad():
             assert torch.allclose(render_in_viewer_thread(model, cam), direct(render_filter))
             # everything else (training, evaluation, metrics) still sees every Gaussian
@@ -356,12 +340,13 @@ def test_render_filter_applies_to_viewer_renders_only(tmp_path, server):
         n_kept[render_filter] = model._gaussians_to_render()["means"].shape[0]
         model.render_filter = "all"
     assert n_kept == {"all": 300, "hide_poison": 200, "only_poison": 100}
+    assert "get_outputs_for_camera" not in vars(model)  # the model's own render path, not a patched one
     with pytest.raises(ValueError, match="unknown render filter"):
         panel.set_render_filter("nope")
 
 
 def test_panel_without_attack_folder_says_so(tmp_path, server):
-    panel = set_up_panel(fake_pipeline(tmp_path, tagged_model()), server, tmp_path / "run")
+    panel = set_up_panel(FakeSource(tagged_model()), server, tmp_path / "run")
     assert "no attack record" in panel._gui["status"].content
     assert str(tmp_path / "run" / "attack" / "attack.json") in panel._gui["status"].content
     # innocent and held-out views still work
@@ -372,6 +357,11 @@ def test_panel_without_attack_folder_says_so(tmp_path, server):
     while "no KDE" not in panel._gui["status"].content and time.time() < deadline:
         time.sleep(0.01)
     assert "no KDE" in panel._gui["status"].content
+    # an unreadable record: its one-line message
+    (tmp_path / "run" / "attack").mkdir(parents=True)
+    (tmp_path / "run" / "attack" / "attack.json").write_text("{")
+    panel.load_views()
+    assert len(panel.views.problems) == 1 and "cannot read" in panel.views.problems[0]
 
 
 def test_panel_from_attack_folder(tmp_path, server):
@@ -381,12 +371,13 @@ def test_panel_from_attack_folder(tmp_path, server):
     grid = DensityGrid(values=np.zeros((4, 4, 4), np.float32), origin=np.zeros(3), voxel_size=0.25)
     kde = np.linspace(0, 1, 64, dtype=np.float32).reshape(4, 4, 4)
     grid.save_npz(run_dir / "attack" / "density_grid.npz", extras={"kde": kde})
-    pipeline = fake_pipeline(tmp_path, model)
+    pipeline = FakeSource(model)
     panel = set_up_panel(pipeline, server, run_dir)
     assert [v.index for v in panel.poisoned] == [2]
     assert panel._gui["view"].options[:2] == (NO_VIEW, "poisoned: images/f2.png")
     assert "100 poison Gaussians of 300" in panel._gui["status"].content
-    assert any(name.startswith("/stealth_attack/poisoned_cameras/") for name in panel._nodes)
+    nodes = panel._scene.nodes
+    assert frustum_node(2) in nodes
 
     # overlays: poison centres and thresholded KDE voxels
     panel._gui["centres"].value = True
@@ -395,17 +386,19 @@ def test_panel_from_attack_folder(tmp_path, server):
     assert "100 poison centres" in panel._gui["status"].content
     threshold = panel._gui["kde_threshold"].value
     assert f"{int((kde >= threshold).sum())} KDE voxels" in panel._gui["status"].content
-    assert {"/stealth_attack/poison_centres", "/stealth_attack/kde_voxels"} <= set(panel._nodes)
-    assert panel.voxel_cloud(threshold) is panel.voxel_cloud(threshold)  # cached
+    assert {CENTRES_NODE, KDE_NODE} <= set(nodes)
+    attack_dir = run_dir / "attack"
+    assert panel._kde.cloud(attack_dir, threshold) is panel._kde.cloud(attack_dir, threshold)  # cached
     panel._gui["centres"].value = False
     panel._gui["kde"].value = False
     panel.refresh_overlays()
-    assert not {"/stealth_attack/poison_centres", "/stealth_attack/kde_voxels"} & set(panel._nodes)
+    assert not {CENTRES_NODE, KDE_NODE} & set(nodes)
 
     # the read-out: a camera on the poisoned view gets its masked PSNR, computed as the metrics do
-    cam = pipeline.datamanager.train_dataset.cameras[2:3]
+    cam = pipeline.train_cameras[2:3]
     with torch.no_grad():
-        expected = masked_psnr(model.get_outputs(cam)["rgb"], panel.poisoned[0].target, mask)
+        expected = masked_psnr(model.get_outputs(cam)["rgb"], target, mask)
+    assert torch.equal(panel.poisoned[0].mask, torch.from_numpy(mask))
     assert panel.masked_psnr(2) == pytest.approx(expected)
     client = _FakeClient()
     (entry,) = [e for e in panel.entries if e.role == "poisoned"]
@@ -418,7 +411,7 @@ def test_panel_from_attack_folder(tmp_path, server):
     assert "images/f2.png" in panel._gui["readout"].content
     # frusta: the ones at the view the camera sits on are hidden (they would cover the render) and come
     # back afterwards; nerfstudio's frustum of the poisoned view (clean image) gives way to the red one
-    ours, theirs = panel._nodes["/stealth_attack/poisoned_cameras/view0002"], panel._viewer.camera_handles
+    ours, theirs = nodes[frustum_node(2)], panel._viewer.camera_handles
     assert ours.visible is False and theirs[2].visible is False and theirs[1].visible is True
     (innocent,) = [e for e in panel.entries if e.role == "innocent" and e.index == 1]
     apply_camera_jump(client.camera, panel.jump_for(innocent))
@@ -431,12 +424,10 @@ def test_panel_from_attack_folder(tmp_path, server):
     assert ours.visible is True and theirs[1].visible is True and theirs[2].visible is False
     panel._gui["frusta"].value = False
     panel.refresh_overlays()
-    assert "/stealth_attack/poisoned_cameras/view0002" not in panel._nodes and theirs[2].visible is True
+    assert frustum_node(2) not in nodes and theirs[2].visible is True
 
 
 def test_panel_prefers_the_pipelines_poisoned_views(tmp_path, server):
-    from stealth_ns.attack.injection import PoisonView
-
     target = torch.rand(32, 48, 3)
     mask = torch.zeros(32, 48, dtype=torch.bool)
     mask[4:10, 4:10] = True
@@ -445,10 +436,28 @@ def test_panel_prefers_the_pipelines_poisoned_views(tmp_path, server):
         index=4, name="images/f4.png", c2w=cams.camera_to_worlds[4], fx=1.0, fy=1.0, cx=1.0, cy=1.0,
         mask=mask, target=target,
     )  # fmt: skip
-    panel = set_up_panel(
-        fake_pipeline(tmp_path, tagged_model(), poison_views=[view]), server, tmp_path / "run"
-    )
+    panel = set_up_panel(FakeSource(tagged_model(), poison_views=[view]), server, tmp_path / "run")
     (data,) = panel.poisoned
-    assert data.index == 4 and np.array_equal(data.mask, mask.numpy())
+    assert data is view
     assert "no attack record" not in panel._gui["status"].content
     assert panel._gui["view"].options[1] == "poisoned: images/f4.png"
+
+
+def test_real_pipeline_satisfies_the_protocol(tiny_orbit_scene, server, tmp_path):
+    """A real StealthPipeline has what ``PanelSource`` names, and the panel lists its views."""
+    from attack_helpers import build_pipeline
+
+    from stealth_ns.pipeline import StealthPipeline
+
+    hints = typing.get_type_hints
+    assert hints(StealthPipeline.split_views)["return"] == hints(PanelSource.split_views)["return"]
+    pipeline = build_pipeline(tiny_orbit_scene, AttackConfig(density_guided=False))
+    assert isinstance(pipeline, PanelSource) and isinstance(pipeline.model, PanelModel)
+    assert isinstance(pipeline.stealth_attack, StealthAttackPanel)
+    views = pipeline.split_views()
+    names, cameras = views["train"]
+    assert len(names) == len(cameras) and all(n.startswith("images/") for n in names)
+    panel = set_up_panel(pipeline, server, tmp_path / "run")
+    (view,) = pipeline.poison_views
+    assert panel._gui["view"].options[1] == f"poisoned: {view.name}"
+    assert len(panel.entries) == sum(len(split_names) for split_names, _ in views.values())

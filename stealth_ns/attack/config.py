@@ -8,6 +8,10 @@ scene depth, ``grid_resolution`` / ``bandwidth`` count voxels, ``poison_scale`` 
 footprints -- so they transfer between captures. The absolute overrides (``t_min``,
 ``voxel_size``) are in nerfstudio's rescaled scene units (cameras recentred and scaled into
 [-1, 1]³ by ``auto_scale_poses``).
+
+A plain dataclass (tyro builds ``--pipeline.attack.*`` from it; a run's ``config.yml`` stores it
+as ``!!python/object:stealth_ns.attack.config.AttackConfig``): importing this module loads neither
+nerfstudio nor torch, so the CLI's tools (``stealth-ns rank-views``) can read the defaults.
 """
 
 from __future__ import annotations
@@ -16,11 +20,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from nerfstudio.configs.base_config import PrintableConfig
+from stealth_ns.attack.noise_schedule import NoiseDecay
 
 
 @dataclass
-class AttackConfig(PrintableConfig):
+class AttackConfig:
     """StealthAttack settings (illusion, poisoned views, components, KDE, injection, noise)."""
 
     enabled: bool = True
@@ -28,8 +32,9 @@ class AttackConfig(PrintableConfig):
 
     # --- the illusion --------------------------------------------------------------------
     illusion: str = "astronaut"
-    """A built-in object name (see ``stealth-ns illusions``) or the path of an RGBA PNG (alpha = mask)
-    or of an RGB image used with ``illusion_mask``."""
+    """A built-in object (``astronaut``, ``horse``, ``coffee``, ``logo`` or ``coin``: cut-outs of images
+    shipped with scikit-image, ``stealth_ns.attack.illusion.BUILTIN_ILLUSIONS``) or the path of an RGBA
+    image (alpha = mask) or of an RGB image used with ``illusion_mask``."""
     illusion_mask: Path | None = None
     """Mask image for an RGB illusion (pixels > 0.5 after normalising are the object)."""
     illusion_center: tuple[float, float] = (0.5, 0.5)
@@ -112,7 +117,8 @@ class AttackConfig(PrintableConfig):
     # --- view-consistency noise (§3.4) ---------------------------------------------------------
     noise_sigma0: float = 100.0
     """Initial noise std-dev on the 0-255 scale (paper: 30 or 100; 100 is the default)."""
-    noise_decay: Literal["linear", "cosine", "sqrt"] = "linear"
-    """How sigma decays to 0 over the training run."""
+    noise_decay: NoiseDecay = "linear"
+    """How sigma decays to 0 over the training run (paper eqs. 6-8: linear, cosine, sqrt), or
+    ``constant``: sigma stays at ``noise_sigma0`` (an ablation: noise that never fades)."""
     seed: int = 0
     """Seed of the noise (deterministic per seed, view and step)."""

@@ -25,6 +25,7 @@ from skimage import color, filters, morphology
 from skimage.transform import resize
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.image_io import read_image, split_alpha, to_float32
 
 __all__ = [
     "BUILTIN_ILLUSIONS",
@@ -33,7 +34,6 @@ __all__ = [
     "composite",
     "load_illusion",
     "place_illusion",
-    "save_png",
 ]
 
 ImageT = TypeVar("ImageT", np.ndarray, torch.Tensor)
@@ -80,13 +80,11 @@ _SKIMAGE_DATA = Path(__import__("skimage").__file__).parent / "data"
 
 
 def _read_bundled(filename: str) -> np.ndarray:
-    """Read an image file shipped inside the scikit-image wheel (no fetcher, no network)."""
-    from skimage import io
-
+    """Read an image file shipped inside the scikit-image wheel (no fetcher, no network), as stored."""
     path = _SKIMAGE_DATA / filename
     if not path.is_file():
         raise StealthNSError(f"built-in illusion source {path} is missing from the scikit-image install")
-    return io.imread(path)
+    return read_image(path, "built-in illusion source")
 
 
 def _largest_component(mask: np.ndarray) -> np.ndarray:
@@ -113,9 +111,7 @@ def _finish(
     r0, r1 = max(rows[0] - 2, 0), min(rows[-1] + 3, mask.shape[0])
     c0, c1 = max(cols[0] - 2, 0), min(cols[-1] + 3, mask.shape[1])
     mask = mask[r0:r1, c0:c1]
-    rgb = rgb[r0:r1, c0:c1].astype(np.float32)
-    if rgb.max() > 1.0:
-        rgb = rgb / 255.0
+    rgb = to_float32(rgb[r0:r1, c0:c1])
     _, (ii, jj) = ndimage.distance_transform_edt(~mask, return_indices=True)
     rgb = np.clip(rgb[ii, jj], 0, 1).astype(np.float32)
     if alpha is not None:
@@ -133,7 +129,7 @@ def _finish(
 def _make_horse() -> Illusion:
     """The ``horse`` silhouette (anti-aliased black on white) filled with a saturated magenta-to-yellow
     gradient and a faint diagonal stripe texture; the drawing's anti-aliasing is the alpha."""
-    img = _read_bundled("horse.png")[..., :3].astype(np.float32) / 255.0
+    img = to_float32(_read_bundled("horse.png")[..., :3])
     coverage = 1.0 - img.mean(axis=-1)  # 1 inside the black silhouette, anti-aliased at the edge
     h, w = coverage.shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
@@ -186,13 +182,13 @@ def _make_logo() -> Illusion:
 def _make_coin() -> Illusion:
     """One ancient coin (the bottom-left Athena head) from ``coins``, Otsu-segmented in its neighbourhood
     and tinted gold."""
-    img = _read_bundled("coins.png").astype(np.float32)
-    crop = img[225:296, 10:83]
+    raw = _read_bundled("coins.png")[225:296, 10:83]
+    crop = raw.astype(np.float32)  # Otsu on the 0-255 grey levels
     fg = crop > filters.threshold_otsu(crop)
     fg = ndimage.binary_closing(fg, structure=morphology.disk(2))
     fg = _largest_component(ndimage.binary_fill_holes(fg))
     fg = ndimage.binary_opening(fg, structure=morphology.disk(2))
-    g = crop / 255.0
+    g = to_float32(raw)
     lo, hi = np.percentile(g[fg], [2, 98])
     g = np.clip((g - lo) / max(hi - lo, 1e-6), 0, 1)[..., None]
     dark, light = np.array([0.45, 0.25, 0.02]), np.array([1.0, 0.88, 0.35])
@@ -222,7 +218,7 @@ def _make_astronaut() -> Illusion:
     from skimage import segmentation
 
     img = _read_bundled("astronaut.png")[..., :3]
-    small = img[::2, ::2].astype(np.float64) / 255.0
+    small = img[::2, ::2].astype(np.float64) / 255.0  # float64: the Lab segmentation was tuned on it
     lab = color.rgb2lab(small) / np.array([100.0, 128.0, 128.0])
     seeds = np.zeros(small.shape[:2], dtype=np.int32)
     for label, points in ((1, _ASTRONAUT_FG), (2, _ASTRONAUT_BG)):
@@ -275,30 +271,11 @@ def builtin_illusion(name: str) -> Illusion:
 # ------------------------------------------------------------------------------------------- file I/O
 
 
-def _to_unit_float(arr: np.ndarray) -> np.ndarray:
-    """Integer/bool/float image -> float32 in [0, 1] (integers scaled by their dtype's maximum)."""
-    if arr.dtype == bool:
-        return arr.astype(np.float32)
-    if np.issubdtype(arr.dtype, np.integer):
-        return arr.astype(np.float32) / float(np.iinfo(arr.dtype).max)
-    out = arr.astype(np.float32)
-    if out.size and np.nanmax(out) > 1.0:  # float image stored on the 0-255 scale
-        out = out / 255.0
-    return np.clip(np.nan_to_num(out), 0.0, 1.0)
-
-
-def _read_image(path: Path, what: str) -> np.ndarray:
-    from skimage import io
-
-    if not path.exists():
-        raise StealthNSError(f"{what} {path} does not exist")
-    if not path.is_file():
-        raise StealthNSError(f"{what} {path} is not a file")
-    try:
-        arr = np.asarray(io.imread(path))
-    except Exception as exc:  # imageio / PIL raise many different types
-        raise StealthNSError(f"{what} {path} could not be read as an image ({type(exc).__name__})") from None
-    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 2, 3, 4)) or arr.size == 0:
+def _read_checked(path: Path, what: str) -> np.ndarray:
+    """:func:`~stealth_ns.image_io.read_image`, refusing what is not one 2-D grey / grey+alpha / RGB /
+    RGBA image of numbers."""
+    arr = read_image(path, what)
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 2, 3, 4)):
         raise StealthNSError(f"{what} {path} has unsupported shape {arr.shape} (expected a single 2-D image)")
     if arr.dtype.kind not in "biuf":
         raise StealthNSError(f"{what} {path} has unsupported pixel type {arr.dtype}")
@@ -312,7 +289,9 @@ def load_illusion(image_path: str | Path, mask_path: str | Path | None = None) -
     * With ``mask_path`` (wins over an alpha channel): the mask, greyscale / RGB (max over channels) /
       RGBA (its alpha if not fully opaque, else its colour) / bool, normalised to [0, 1] by its dtype's
       range, is the alpha; the mask is ``alpha > 0.5``.
-    * Greyscale images are replicated to RGB.
+    * Greyscale images are replicated to RGB. Pixel values are scaled by their dtype's range
+      (:func:`~stealth_ns.image_io.to_float32`: uint8 by 255, uint16 by 65535; floats are taken as
+      [0, 1] and clipped).
 
     Raises:
         StealthNSError: file missing or not readable as an image; RGB image without mask and without an
@@ -320,33 +299,12 @@ def load_illusion(image_path: str | Path, mask_path: str | Path | None = None) -
             a fully transparent RGBA image.
     """
     image_path = Path(image_path)
-    arr = _read_image(image_path, "illusion image")
-    if arr.ndim == 2:
-        arr = arr[..., None]
-    chans = arr.shape[2]
-    unit = _to_unit_float(arr)
-    rgb = np.repeat(unit[..., :1], 3, axis=2) if chans in (1, 2) else unit[..., :3]
-    has_alpha = chans in (2, 4)
-
+    arr = _read_checked(image_path, "illusion image")
+    rgb, image_alpha = split_alpha(arr)
     if mask_path is not None:
-        mask_path = Path(mask_path)
-        marr = _read_image(mask_path, "illusion mask")
-        if marr.shape[:2] != arr.shape[:2]:
-            raise StealthNSError(
-                f"illusion mask {mask_path} is {marr.shape[1]}x{marr.shape[0]} px but the image "
-                f"{image_path.name} is {arr.shape[1]}x{arr.shape[0]} px"
-            )
-        munit = _to_unit_float(marr)
-        if munit.ndim == 2:
-            alpha = munit
-        elif munit.shape[2] in (2, 4) and munit[..., -1].min() < 1.0:
-            alpha = munit[..., -1]
-        else:
-            alpha = munit[..., : (1 if munit.shape[2] <= 2 else 3)].max(axis=2)
-        if not np.any(alpha > 0.5):
-            raise StealthNSError(f"illusion mask {mask_path} is empty (no pixel above 0.5)")
-    elif has_alpha:
-        alpha = unit[..., -1]
+        alpha = _mask_alpha(Path(mask_path), image_path, arr.shape[:2])
+    elif image_alpha is not None:
+        alpha = image_alpha
         if not np.any(alpha > 0.5):
             raise StealthNSError(f"illusion image {image_path} is fully transparent (no alpha above 0.5)")
     else:
@@ -356,34 +314,19 @@ def load_illusion(image_path: str | Path, mask_path: str | Path | None = None) -
     return Illusion(rgb=rgb, alpha=alpha, name=image_path.stem)
 
 
-def save_png(path: str | Path, array: np.ndarray | torch.Tensor) -> Path:
-    """Write an 8-bit PNG (creating parent directories).
-
-    Args:
-        path: output file.
-        array: ``[H, W]``, ``[H, W, 3]`` or ``[H, W, 4]``; bool (-> 0/255), uint8 (as is) or float in
-            [0, 1] (clipped, scaled by 255 and rounded). Torch tensors are moved to the CPU.
-
-    Returns:
-        The path written.
-    """
-    import imageio.v3 as iio
-
-    if isinstance(array, torch.Tensor):
-        array = array.detach().cpu().numpy()
-    arr = np.asarray(array)
-    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3, 4)):
-        raise ValueError(f"save_png expects [H, W], [H, W, 3] or [H, W, 4], got {arr.shape}")
-    if arr.ndim == 3 and arr.shape[2] == 1:
-        arr = arr[..., 0]
-    if arr.dtype == bool:
-        arr = arr.astype(np.uint8) * 255
-    elif arr.dtype != np.uint8:
-        arr = np.round(np.clip(np.nan_to_num(arr.astype(np.float64)), 0.0, 1.0) * 255.0).astype(np.uint8)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    iio.imwrite(path, arr, extension=".png")
-    return path
+def _mask_alpha(mask_path: Path, image_path: Path, image_hw: tuple[int, int]) -> np.ndarray:
+    """The opacity ``[H, W]`` in [0, 1] a mask file gives (see :func:`load_illusion`)."""
+    marr = _read_checked(mask_path, "illusion mask")
+    if marr.shape[:2] != image_hw:
+        raise StealthNSError(
+            f"illusion mask {mask_path} is {marr.shape[1]}x{marr.shape[0]} px but the image "
+            f"{image_path.name} is {image_hw[1]}x{image_hw[0]} px"
+        )
+    mrgb, malpha = split_alpha(marr)
+    alpha = malpha if malpha is not None and malpha.min() < 1.0 else mrgb.max(axis=2)
+    if not np.any(alpha > 0.5):
+        raise StealthNSError(f"illusion mask {mask_path} is empty (no pixel above 0.5)")
+    return alpha
 
 
 # ---------------------------------------------------------------------------------- placement / compositing

@@ -6,8 +6,8 @@ up to the rendered depth and never within two near planes of the camera: the lea
 from ``t_min`` on (``placement="kde"``, the paper), or (``placement="view-aware"``,
 :mod:`stealth_ns.attack.visibility`) the one seen by the fewest innocent training cameras, the
 density breaking ties; with ``t_min_fraction`` above ``unseen_t_min_fraction``, points no
-innocent camera sees are searched from the nearer bound. ``append_gaussians`` then
-grows the model's parameters, their Adam state and gsplat's densification state together.
+innocent camera sees are searched from the nearer bound. The model appends them
+(``StealthSplatModel.append_gaussians``).
 """
 
 from __future__ import annotations
@@ -24,25 +24,11 @@ from torch import Tensor
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid, gaussian_kde_grid, voxel_density
 from stealth_ns.attack.ray_search import min_density_points, pixel_rays, zdepth_to_ray_t
+from stealth_ns.attack.record import PoisonView
 from stealth_ns.attack.visibility import SURFACE_ALPHA, CameraDepths, count_seeing_cameras
 
 # Pixels whose rendered opacity is below SURFACE_ALPHA see no reconstructed surface (sky, empty
 # background): their ray is searched up to where it leaves the density grid instead.
-
-
-@dataclass
-class PoisonView:
-    """One poisoned training view: camera, illusion mask and target colours."""
-
-    index: int
-    name: str
-    c2w: Tensor  # [3, 4] OpenGL camera-to-world
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    mask: Tensor  # [H, W] bool, illusion pixels
-    target: Tensor  # [H, W, 3] float in [0, 1], the illusion composite I_ILL
 
 
 @dataclass
@@ -99,6 +85,28 @@ def build_density(
     return grid, gaussian_kde_grid(grid, cfg.bandwidth)
 
 
+def _illusion_rays(
+    view: PoisonView, depth: Tensor, alpha: Tensor, lower: Tensor, upper: Tensor
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """The rays of a view's illusion pixels and how far along each the search may go.
+
+    Returns:
+        ``rows``, ``cols`` [M] pixel indices; ``origins``, ``dirs`` [M, 3] (unit directions, scene units);
+        ``cos`` [M] cosine to the optical axis (ray t = z / cos); ``t_max`` [M]: the rendered surface, or
+        where the ray leaves the density grid [``lower``, ``upper``] on pixels that show none.
+    """
+    rows, cols = torch.nonzero(view.mask, as_tuple=True)
+    pixels = torch.stack([cols, rows], dim=-1)
+    rays = pixel_rays(view.c2w, view.fx, view.fy, view.cx, view.cy, pixels)
+    origins = torch.as_tensor(rays.origins, dtype=torch.float32)
+    dirs = torch.as_tensor(rays.directions, dtype=torch.float32)
+    cos = torch.as_tensor(rays.cos_theta, dtype=torch.float32)
+    t_surface = torch.as_tensor(zdepth_to_ray_t(depth[rows, cols].float(), cos))
+    t_exit = ray_exit_distance(origins, dirs, lower, upper)
+    t_max = torch.where(alpha[rows, cols] >= SURFACE_ALPHA, t_surface, t_exit)
+    return rows, cols, origins, dirs, cos, t_max
+
+
 def median_scene_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
     """Median rendered z-depth (scene units) of the pixels that show a surface (``fallback``,
     e.g. the distance to the density grid's centre, when none does)."""
@@ -149,15 +157,7 @@ def place_poison(
     centre = torch.as_tensor((grid.origin + grid.upper) / 2, dtype=torch.float32)
     t1 = time.perf_counter()
     for view, depth, alpha in zip(views, depths, alphas, strict=True):
-        rows, cols = torch.nonzero(view.mask, as_tuple=True)
-        pixels = torch.stack([cols, rows], dim=-1)
-        rays = pixel_rays(view.c2w, view.fx, view.fy, view.cx, view.cy, pixels)
-        origins = torch.as_tensor(rays.origins, dtype=torch.float32)
-        dirs = torch.as_tensor(rays.directions, dtype=torch.float32)
-        cos = torch.as_tensor(rays.cos_theta, dtype=torch.float32)
-        t_surface = torch.as_tensor(zdepth_to_ray_t(depth[rows, cols].float(), cos))
-        t_exit = ray_exit_distance(origins, dirs, lower, upper)
-        t_max = torch.where(alpha[rows, cols] >= SURFACE_ALPHA, t_surface, t_exit)
+        rows, cols, origins, dirs, cos, t_max = _illusion_rays(view, depth, alpha, lower, upper)
         scene_depth = median_scene_depth(
             depth, alpha, fallback=float(torch.linalg.norm(centre - view.c2w[:3, 3]))
         )
@@ -211,38 +211,3 @@ def place_poison(
         kde=kde,
         timings=timings,
     )
-
-
-@torch.no_grad()
-def append_gaussians(
-    params: torch.nn.ParameterDict,
-    optimizers: dict[str, torch.optim.Optimizer],
-    strategy_state: dict,
-    rows: dict[str, Tensor],
-) -> None:
-    """Append Gaussians to every per-Gaussian tensor, keeping the training state consistent.
-
-    Args:
-        params: the model's ``gauss_params`` (every entry [N, ...]).
-        optimizers: one optimizer per ``params`` entry (gsplat's strategy contract).
-        strategy_state: gsplat ``DefaultStrategy`` state; its [N] tensors get zero rows.
-        rows: new values for every ``params`` entry, each [M, ...].
-    """
-    from gsplat.strategy.ops import _update_param_with_optimizer
-
-    if set(rows) != set(params.keys()):
-        raise ValueError(f"new rows for {sorted(rows)} but the model has {sorted(params.keys())}")
-    n_old = params["means"].shape[0]
-    n_new = rows["means"].shape[0]
-
-    def param_fn(name: str, p: Tensor) -> torch.nn.Parameter:
-        return torch.nn.Parameter(torch.cat([p, rows[name].to(p)]), requires_grad=p.requires_grad)
-
-    def optimizer_fn(key: str, v: Tensor) -> Tensor:
-        return torch.cat([v, torch.zeros((n_new, *v.shape[1:]), device=v.device, dtype=v.dtype)])
-
-    _update_param_with_optimizer(param_fn, optimizer_fn, params, optimizers)
-    for key, value in strategy_state.items():
-        if isinstance(value, Tensor) and value.dim() > 0 and value.shape[0] == n_old:
-            pad = torch.zeros((n_new, *value.shape[1:]), device=value.device, dtype=value.dtype)
-            strategy_state[key] = torch.cat([value, pad])

@@ -9,22 +9,28 @@ its default) and decays over the ``T`` training steps:
     cosine:  sigma_0 * cos(pi t / (2 T))
     sqrt:    sigma_0 * sqrt(1 - t / T)
     constant: sigma_0 (ablation)
+
+Importing this module does not import torch (only :func:`noisy_image` needs it), so that
+:mod:`stealth_ns.attack.config` can take :data:`NoiseDecay` from here and stay light.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Literal, TypeVar
+from typing import TYPE_CHECKING, Literal, TypeVar, get_args
 
 import numpy as np
-import torch
 
-__all__ = ["NOISE_DECAYS", "noise_sigma", "noise_seed", "noisy_image"]
+if TYPE_CHECKING:
+    import torch
+
+__all__ = ["NOISE_DECAYS", "NoiseDecay", "noise_sigma", "noise_seed", "noisy_image"]
 
 NoiseDecay = Literal["linear", "cosine", "sqrt", "constant"]
-NOISE_DECAYS: tuple[str, ...] = ("linear", "cosine", "sqrt", "constant")
+"""How the noise strength decays over training (``AttackConfig.noise_decay``)."""
+NOISE_DECAYS: tuple[str, ...] = get_args(NoiseDecay)
 
-ImageT = TypeVar("ImageT", torch.Tensor, np.ndarray)
+ImageT = TypeVar("ImageT", "torch.Tensor", np.ndarray)
 
 
 def noise_sigma(step: int, total_steps: int, sigma0: float, decay: NoiseDecay = "linear") -> float:
@@ -99,6 +105,8 @@ def noisy_image(image: ImageT, sigma_255: float, seed: int, view_index: int, ste
         integer and clipped to 0..255, float images clipped to [0, 1]. ``sigma_255 == 0`` returns an
         unchanged copy.
     """
+    import torch
+
     sigma = float(sigma_255)
     if not (math.isfinite(sigma) and sigma >= 0):
         raise ValueError(f"sigma_255 must be a non-negative number, got {sigma_255!r}")

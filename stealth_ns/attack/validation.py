@@ -60,6 +60,8 @@ def _int(cfg: AttackConfig, name: str, allowed: str, ok, optional: bool = False)
 
 
 def _choices(name: str) -> tuple[str, ...]:
+    """The values the ``Literal`` type of option ``name`` allows (``noise_decay``: the schedule's
+    :data:`~stealth_ns.attack.noise_schedule.NoiseDecay`)."""
     return typing.get_args(typing.get_type_hints(AttackConfig)[name])
 
 
@@ -71,8 +73,24 @@ def validate_attack_config(cfg: AttackConfig, max_iterations: int | None = None)
     for name in ("enabled", "gt_replacement", "density_guided", "view_noise", "outlier_removal"):
         if not isinstance(getattr(cfg, name), bool):
             raise _bad(name, getattr(cfg, name), "True or False")
+    _check_illusion(cfg)
+    _check_views(cfg)
+    _check_density_and_search(cfg)
+    for name in ("placement", "tie_break", "noise_decay"):
+        choices = _choices(name)
+        if getattr(cfg, name) not in choices:
+            raise _bad(name, getattr(cfg, name), "one of " + ", ".join(choices))
+    _check_injection(cfg, max_iterations)
+    _real(cfg, "noise_sigma0", "finite and >= 0 (0-255 scale)", lambda v: v >= 0.0)
+    _int(cfg, "seed", "an integer >= 0", lambda v: v >= 0)
 
-    # the illusion
+    unchecked = {f.name for f in fields(AttackConfig)} - _CHECKED
+    if unchecked:  # a new option without a rule: fail loudly in tests, not silently for users
+        raise AssertionError(f"AttackConfig options without a check: {sorted(unchecked)}")
+
+
+def _check_illusion(cfg: AttackConfig) -> None:
+    """``illusion``, ``illusion_mask``, ``illusion_center``, ``illusion_scale``."""
     if not isinstance(cfg.illusion, str) or not cfg.illusion.strip():
         raise _bad("illusion", cfg.illusion, "a built-in illusion name or an image path")
     mask = cfg.illusion_mask
@@ -94,7 +112,9 @@ def validate_attack_config(cfg: AttackConfig, max_iterations: int | None = None)
         lambda v: 0.0 < v <= 1.0,
     )
 
-    # poisoned views
+
+def _check_views(cfg: AttackConfig) -> None:
+    """``views`` and ``multi_view``."""
     views = cfg.views
     if not isinstance(views, (tuple, list)) or not all(
         (isinstance(v, str) and v.strip()) or (_is_int(v) and v >= 0) for v in views
@@ -102,7 +122,9 @@ def validate_attack_config(cfg: AttackConfig, max_iterations: int | None = None)
         raise _bad("views", views, "training-view indices (>= 0) or image names")
     _int(cfg, "multi_view", "1, 2, 3 or 4", lambda v: 1 <= v <= 4)
 
-    # density and KDE
+
+def _check_density_and_search(cfg: AttackConfig) -> None:
+    """The KDE grid (``voxel_size``, ``grid_resolution``, ``bandwidth``) and the ray search's numbers."""
     _real(cfg, "voxel_size", "None or > 0 (scene units)", lambda v: v > 0.0, optional=True)
     _int(
         cfg,
@@ -128,12 +150,10 @@ def validate_attack_config(cfg: AttackConfig, max_iterations: int | None = None)
         f"an integer in [1, {MAX_SAMPLES_PER_RAY}]",
         lambda v: 1 <= v <= MAX_SAMPLES_PER_RAY,
     )
-    for name in ("placement", "tie_break", "noise_decay"):
-        choices = _choices(name)
-        if getattr(cfg, name) not in choices:
-            raise _bad(name, getattr(cfg, name), "one of " + ", ".join(choices))
 
-    # injection
+
+def _check_injection(cfg: AttackConfig, max_iterations: int | None) -> None:
+    """``injection_step`` (before ``max_iterations`` when known), ``poison_opacity``, ``poison_scale``."""
     if max_iterations is None:
         _int(cfg, "injection_step", "None (end of warm-up) or a step >= 0", lambda v: v >= 0, optional=True)
     else:
@@ -146,15 +166,6 @@ def validate_attack_config(cfg: AttackConfig, max_iterations: int | None = None)
         )
     _real(cfg, "poison_opacity", "in (0, 1) (open interval)", lambda v: 0.0 < v < 1.0)
     _real(cfg, "poison_scale", "> 0 (pixel footprints)", lambda v: v > 0.0)
-
-    # view-consistency noise
-    _real(cfg, "noise_sigma0", "finite and >= 0 (0-255 scale)", lambda v: v >= 0.0)
-    _int(cfg, "seed", "an integer >= 0", lambda v: v >= 0)
-
-    checked = _CHECKED
-    unchecked = {f.name for f in fields(AttackConfig)} - checked
-    if unchecked:  # a new option without a rule: fail loudly in tests, not silently for users
-        raise AssertionError(f"AttackConfig options without a check: {sorted(unchecked)}")
 
 
 _CHECKED = frozenset(

@@ -14,7 +14,7 @@ Our reading, implemented here:
   cloud (SfM points), every point with weight 1, after the same statistical outlier removal the attack
   applies, on a grid of ``grid_resolution`` voxels along the longest side of the points' bounding box,
   smoothed with a Gaussian of ``bandwidth`` voxels and normalised to a maximum of 1 (the
-  :class:`~stealth_ns.attack.config.AttackConfig` defaults: 160 voxels, h = 7.5);
+  :class:`~stealth_ns.attack.config.AttackConfig` defaults, read from it);
 * the sampling radius is ``r = radius_fraction * diagonal`` of that (inlier) bounding box;
 * a camera's density is the *volume average* of the KDE over the part of its pinhole view frustum that lies
   within distance ``r`` of the camera centre (a cone capped by a sphere). It is estimated with a fixed,
@@ -34,12 +34,13 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 
+from stealth_ns.attack.config import AttackConfig
 from stealth_ns.errors import StealthNSError
 
 if TYPE_CHECKING:
@@ -59,10 +60,12 @@ __all__ = [
     "view_densities",
 ]
 
-# Same defaults as AttackConfig (grid_resolution, bandwidth); not imported from there so that loading the
-# CLI stays free of nerfstudio/torch. tests/test_rank_views.py checks that they agree.
-DEFAULT_GRID_RESOLUTION = 160
-DEFAULT_BANDWIDTH = 7.5
+_ATTACK_DEFAULTS = {f.name: f.default for f in fields(AttackConfig)}
+DEFAULT_GRID_RESOLUTION: int = _ATTACK_DEFAULTS["grid_resolution"]
+"""The attack's KDE grid (voxels along the longest side): the protocol ranks views by the density the
+attack itself would use."""
+DEFAULT_BANDWIDTH: float = _ATTACK_DEFAULTS["bandwidth"]
+"""The attack's KDE bandwidth h in voxels."""
 DEFAULT_RADIUS_FRACTION = 0.1
 DEFAULT_N_DIRS = 32
 DEFAULT_N_DEPTHS = 32
@@ -650,7 +653,7 @@ class RankViews:
     voxel_size: float | None = None
     """KDE voxel edge in scene units; overrides --grid-resolution."""
     bandwidth: float = DEFAULT_BANDWIDTH
-    """KDE bandwidth h in voxels (the attack's default 7.5)."""
+    """KDE bandwidth h in voxels (the attack's default)."""
     outlier_removal: bool = True
     """Drop statistical outliers (20 neighbours, 2 std) from the seed points first, as the attack does."""
     n_dirs: int = DEFAULT_N_DIRS

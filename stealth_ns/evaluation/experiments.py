@@ -44,13 +44,12 @@ from stealth_ns.evaluation.runs import (
     TrainRecord,
     TrainSpec,
     finished_record,
-    json_safe,
     run_status,
     train,
     train_progress,
-    write_json_atomic,
 )
 from stealth_ns.fingerprint import file_sha256
+from stealth_ns.json_io import json_safe, write_json_atomic
 from stealth_ns.method_configs.attack_experiments import (
     DEFAULT_SCENES,
     FOLDERS,
@@ -564,7 +563,7 @@ def _scene_fingerprint(plan_dir: Path, src: SceneSource, record: dict[str, Any] 
     return src.sha256 + (f":{record['ply_sha256']}" if record else "")
 
 
-def make_plan(
+def bench_plan(
     output: Path,
     tables: Sequence[str | int] | None = None,
     scenes: Sequence[str] | None = None,
@@ -585,54 +584,16 @@ def make_plan(
     numbers = parse_tables(tables)
     sources, skipped_scenes = parse_scenes(scenes)
     chosen_scenes = tuple(src.name for src in sources)
-    if method not in METHODS:
-        raise StealthNSError(f"unknown method {method!r}; methods: {', '.join(METHODS)}")
-    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
-        raise StealthNSError(f"seed must be a non-negative integer, got {seed!r}")
-    if iterations is None:
-        iterations = method_iterations(method)
-    if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
-        raise StealthNSError(f"iterations must be a positive integer, got {iterations!r}")
+    iterations = _checked_run_settings(method, seed, iterations)
     output = Path(output).expanduser().absolute()
-
-    table_specs: list[TableSpec] = []
-    skipped: list[str] = []
-    uses: dict[str, list[int]] = {}
-    for number in numbers:
-        table = get_table(number).for_scenes(chosen_scenes)
-        keys = table.run_keys(chosen_scenes)
-        if not keys:
-            skipped.append(f"Table {number} skipped: it runs on {', '.join(table.scenes)}, not in --scenes")
-            continue
-        table_specs.append(table)
-        for key in keys:
-            uses.setdefault(key, []).append(number)
-    if not table_specs:
-        raise StealthNSError(
-            "nothing to run: " + "; ".join(skipped) + f" (scenes given: {' '.join(chosen_scenes)})"
-        )
+    table_specs, skipped, uses = _table_runs(numbers, chosen_scenes)
     used_scenes = tuple(s for s in chosen_scenes if any(k.startswith(f"{s}/") for k in uses))
     for scene in used_scenes:  # a scene's clean run serves every table that runs on the scene
         numbers_on_scene = {n for key, ns in uses.items() if key.startswith(f"{scene}/") for n in ns}
         uses.setdefault(clean_run(scene).key, []).extend(numbers_on_scene)
 
     src_of = {src.name: src for src in sources if src.name in used_scenes}
-    dirs: dict[str, Path] = {}
-    ready: dict[str, bool] = {}
-    records: dict[str, dict[str, Any]] = {}
-    for scene, src in src_of.items():
-        if src.is_preset:
-            dirs[scene] = scene_dir(output, scene, seed, scene_options)
-            ready[scene] = scene_is_ready(dirs[scene], scene, seed, scene_options)
-        elif src.triangulated:
-            record = read_seed_points(output, src)
-            if record is not None:
-                records[scene] = record
-            dirs[scene] = Path(record["dataset"]) if record else seeded_dir(output, scene)
-            ready[scene] = record is not None
-        else:
-            assert src.path is not None
-            dirs[scene], ready[scene] = src.path, True
+    dirs, ready, records = _scene_locations(output, src_of, seed, scene_options)
     views: dict[str, dict[str, str]] = {}
     errors: dict[str, str] = {}
     for scene in used_scenes:
@@ -647,40 +608,18 @@ def make_plan(
             except StealthNSError as err:
                 errors[scene] = f"the KDE protocol cannot rank its views: {err}"
 
-    planned: list[PlannedRun] = []
     first_use = list(uses)  # in table order, then row order: Table 6 runs in the paper's row order
 
     def order(key: str) -> tuple[int, bool, int]:
         run = get_run(*key.split("/"))
         return used_scenes.index(run.scene), not run.clean, first_use.index(key)
 
-    for key in sorted(uses, key=order):
-        run = get_run(*key.split("/"))
-        src = src_of[run.scene]
-        extra = [*src.train_args, *run.args]
-        view = None
-        if run.view in KDE_LEVELS:
-            view = views.get(run.scene, {}).get(run.view) or f"<{run.view.upper()} view of the KDE protocol>"
-            extra += ["--pipeline.attack.views", view]
-        if not run.clean:
-            extra += ["--pipeline.attack.seed", str(seed)]
-        dataparser, dataparser_args = src.dataparser
-        # a preset's folder name holds its seed and options; a folder's experiment names the training seed
-        experiment = dirs[run.scene].name if src.is_preset else f"{run.scene}-seed{seed}"
-        spec = TrainSpec(
-            scene=dirs[run.scene],
-            name=run.name,
-            output_dir=output / "runs",
-            experiment=f"{experiment}-{iterations}it",
-            extra=tuple(extra),
-            method=method,
-            iterations=int(iterations),
-            seed=int(seed),
-            dataparser=dataparser,
-            dataparser_args=dataparser_args,
-            scene_id=None if src.is_preset else f"{run.scene}:{src.sha256[:16]}",
+    planned = [
+        _planned_run(
+            get_run(*key.split("/")), src_of, dirs, views, uses[key], output, method, iterations, seed
         )
-        planned.append(PlannedRun(run, spec, run_status(spec), tuple(sorted(set(uses[key]))), view))
+        for key in sorted(uses, key=order)
+    ]
     return Plan(
         output=output,
         method=method,
@@ -700,8 +639,107 @@ def make_plan(
     )
 
 
+def _checked_run_settings(method: str, seed: int, iterations: int | None) -> int:
+    """Check ``method`` and ``seed``; ``iterations`` (the method's default for None), checked."""
+    if method not in METHODS:
+        raise StealthNSError(f"unknown method {method!r}; methods: {', '.join(METHODS)}")
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise StealthNSError(f"seed must be a non-negative integer, got {seed!r}")
+    if iterations is None:
+        iterations = method_iterations(method)
+    if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
+        raise StealthNSError(f"iterations must be a positive integer, got {iterations!r}")
+    return iterations
+
+
+def _table_runs(
+    numbers: Sequence[int], scenes: tuple[str, ...]
+) -> tuple[list[TableSpec], list[str], dict[str, list[int]]]:
+    """The tables that run on some of ``scenes``, why the others are skipped, and for each run key
+    (``SCENE/NAME``, in table order, then row order) the tables that show it."""
+    table_specs: list[TableSpec] = []
+    skipped: list[str] = []
+    uses: dict[str, list[int]] = {}
+    for number in numbers:
+        table = get_table(number).for_scenes(scenes)
+        keys = table.run_keys(scenes)
+        if not keys:
+            skipped.append(f"Table {number} skipped: it runs on {', '.join(table.scenes)}, not in --scenes")
+            continue
+        table_specs.append(table)
+        for key in keys:
+            uses.setdefault(key, []).append(number)
+    if not table_specs:
+        raise StealthNSError("nothing to run: " + "; ".join(skipped) + f" (scenes given: {' '.join(scenes)})")
+    return table_specs, skipped, uses
+
+
+def _scene_locations(
+    output: Path, src_of: dict[str, SceneSource], seed: int, scene_options: dict[str, Any] | None
+) -> tuple[dict[str, Path], dict[str, bool], dict[str, dict[str, Any]]]:
+    """Per scene: the dataset folder training reads, whether it is ready (generated, or its seed
+    points made), and for a triangulated folder the record of its seed points (when made)."""
+    dirs: dict[str, Path] = {}
+    ready: dict[str, bool] = {}
+    records: dict[str, dict[str, Any]] = {}
+    for scene, src in src_of.items():
+        if src.is_preset:
+            dirs[scene] = scene_dir(output, scene, seed, scene_options)
+            ready[scene] = scene_is_ready(dirs[scene], scene, seed, scene_options)
+        elif src.triangulated:
+            record = read_seed_points(output, src)
+            if record is not None:
+                records[scene] = record
+            dirs[scene] = Path(record["dataset"]) if record else seeded_dir(output, scene)
+            ready[scene] = record is not None
+        else:
+            assert src.path is not None
+            dirs[scene], ready[scene] = src.path, True
+    return dirs, ready, records
+
+
+def _planned_run(
+    run: RunSpec,
+    src_of: dict[str, SceneSource],
+    dirs: dict[str, Path],
+    views: dict[str, dict[str, str]],
+    tables: list[int],
+    output: Path,
+    method: str,
+    iterations: int,
+    seed: int,
+) -> PlannedRun:
+    """The ns-train invocation of ``run`` (shown in ``tables``): its scene's options, the KDE view
+    (a placeholder until ranked), the attack seed, the run folder; with its status on disk."""
+    src = src_of[run.scene]
+    extra = [*src.train_args, *run.args]
+    view = None
+    if run.view in KDE_LEVELS:
+        view = views.get(run.scene, {}).get(run.view) or f"<{run.view.upper()} view of the KDE protocol>"
+        extra += ["--pipeline.attack.views", view]
+    if not run.clean:
+        extra += ["--pipeline.attack.seed", str(seed)]
+    dataparser, dataparser_args = src.dataparser
+    # a preset's folder name holds its seed and options; a folder's experiment names the training seed
+    experiment = dirs[run.scene].name if src.is_preset else f"{run.scene}-seed{seed}"
+    spec = TrainSpec(
+        scene=dirs[run.scene],
+        name=run.name,
+        output_dir=output / "runs",
+        experiment=f"{experiment}-{iterations}it",
+        extra=tuple(extra),
+        method=method,
+        iterations=int(iterations),
+        seed=int(seed),
+        dataparser=dataparser,
+        dataparser_args=dataparser_args,
+        scene_id=None if src.is_preset else f"{run.scene}:{src.sha256[:16]}",
+    )
+    return PlannedRun(run, spec, run_status(spec), tuple(sorted(set(tables))), view)
+
+
 # ------------------------------------------------------------------------------ running it
-def pair_metrics(
+def cached_pair_metrics(
     poisoned: PlannedRun, poisoned_rec: TrainRecord, clean: PlannedRun, clean_rec: TrainRecord
 ) -> tuple[dict[str, Any], float, bool]:
     """``compare_runs`` of a poisoned run and its clean baseline, cached in ``metrics.json``.
@@ -966,7 +1004,7 @@ def _attach_metrics(
         return f"; no metrics: the clean run {clean.key} failed"
     bar.set_postfix_str(f"{p.key} metrics")
     try:
-        metrics, seconds, cached = pair_metrics(p, record, clean, clean_rec)
+        metrics, seconds, cached = cached_pair_metrics(p, record, clean, clean_rec)
     except Exception as err:  # one failed comparison must not stop the benchmark
         log = p.spec.run_dir / METRICS_LOG
         entry["metrics_error"] = f"{type(err).__name__}: {err} (traceback in {log})"
@@ -989,7 +1027,7 @@ def run_bench(
 ) -> Plan | dict[str, Any]:
     """``stealth-ns bench attack``: the plan (``dry_run``) or the results document."""
     # without --dry-run this first plan only checks the input: the views are ranked below
-    plan = make_plan(output, tables, scenes, method, iterations, seed, scene_options, rank_views=dry_run)
+    plan = bench_plan(output, tables, scenes, method, iterations, seed, scene_options, rank_views=dry_run)
     for line in plan.skipped_scenes:
         print(line, flush=True)
     if dry_run:
@@ -1009,7 +1047,7 @@ def run_bench(
                 str(err) if isinstance(err, StealthNSError) else f"{type(err).__name__}: {err}"
             )
             print(f"FAILED {scene}: {failed[scene]}", file=sys.stderr, flush=True)
-    plan = make_plan(output, tables, scenes, method, plan.iterations, seed, scene_options, write_cache=True)
+    plan = bench_plan(output, tables, scenes, method, plan.iterations, seed, scene_options, write_cache=True)
     plan.scene_errors.update(failed)
     print(plan.describe(dry_run=False), flush=True)
     print(flush=True)

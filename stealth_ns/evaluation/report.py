@@ -14,9 +14,7 @@ clean and poisoned renders of cameras orbited up to +-20 degrees from each poiso
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
-import html
 import json
 import re
 import tempfile
@@ -27,12 +25,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from stealth_ns.attack.illusion import save_png
+from stealth_ns.attack.record import AttackRecord, PoisonView
 from stealth_ns.attack.views import rotate_pose, scene_center, scene_up
-from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation.runs import json_safe
+from stealth_ns.errors import StealthNSError, StealthNSExit
 from stealth_ns.fingerprint import dataset_fingerprint, fingerprint_differences, recorded_fingerprint
-from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr
+from stealth_ns.image_io import save_png
+from stealth_ns.json_io import json_safe
+from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr, v_illusory
+from stealth_ns.model import render_camera
 from stealth_ns.pipeline import rgb_float
 from stealth_ns.provenance import software_and_hardware
 
@@ -127,8 +127,8 @@ def load_run(config_path: Path) -> LoadedRun:
 
     try:
         _, pipeline, _, step = safe_eval_setup(config_path, test_mode="test", update_config_callback=relocate)
-    except SystemExit as err:  # the pipeline's own one-line errors
-        raise StealthNSError(str(err).removeprefix("stealth-ns: error: ")) from None
+    except StealthNSExit as err:  # the pipeline's own one-line errors, as raised
+        raise err.error from None
     return LoadedRun(config_path, pipeline, step)
 
 
@@ -140,14 +140,10 @@ def render(
 
     ``render_filter``: "all", "hide_poison" or "only_poison" (a StealthSplatModel's filter).
     """
-    model = run.model
     camera = cameras[index : index + 1].to("cpu")
     if c2w is not None:
         camera.camera_to_worlds = torch.as_tensor(c2w, dtype=torch.float32)[None]
-    model.eval()
-    # the clean run may be any splatting model; only a StealthSplatModel has the filter
-    with model.filtered(render_filter) if render_filter != "all" else contextlib.nullcontext():
-        rgb = model.get_outputs(camera.to(model.device))["rgb"]
+    rgb = render_camera(run.model, camera, render_filter)["rgb"]
     return rgb.float().clamp(0, 1).cpu().numpy()
 
 
@@ -158,12 +154,16 @@ class RunPair:
 
     poisoned: LoadedRun
     clean: LoadedRun
+    record: AttackRecord  # the poisoned run's
 
     @classmethod
     def load(cls, poisoned: Path, clean: Path) -> RunPair:
-        pair = cls(load_run(poisoned), load_run(clean))
-        if not pair.poisoned.attack_enabled or not getattr(pair.poisoned.pipeline, "poison_views", None):
+        ours, theirs = load_run(poisoned), load_run(clean)
+        attack_dir = ours.config_path.parent / "attack"
+        if not ours.attack_enabled or not AttackRecord.exists(attack_dir):
             raise StealthNSError(f"{poisoned} is not an attacked run (trained with the attack disabled?)")
+        record = AttackRecord.read(attack_dir, ours.pipeline.datamanager.train_dataset.cameras)
+        pair = cls(ours, theirs, record)
         if pair.clean.attack_enabled:
             raise StealthNSError(
                 f"{clean} was trained with the attack on; train the clean run with "
@@ -189,8 +189,9 @@ class RunPair:
             )
 
     @property
-    def views(self) -> list[Any]:
-        return self.poisoned.pipeline.poison_views
+    def views(self) -> list[PoisonView]:
+        """The poisoned views, as the run's attack record has them."""
+        return self.record.views
 
     @property
     def cameras(self) -> Any:
@@ -205,23 +206,17 @@ def _held_out_metrics(run: LoadedRun) -> dict[str, float | None]:
     return {k: (float(metrics[k]) if k in metrics else None) for k in ("psnr", "ssim", "lpips")}
 
 
-def _mean(values: list[float | None]) -> float | None:
-    finite = [v for v in values if v is not None]
-    return float(np.mean(finite)) if finite and len(finite) == len(values) else None
-
-
 def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None) -> dict[str, Any]:
     """The report's numbers (see the module docstring); keys documented in docs/evaluation.md."""
     lpips = lpips if lpips is not None else LazyLPIPS()
-    per_view: dict[str, dict[str, float | None]] = {}
+    ours, naive = {}, {}
     for v in pair.views:
-        ours = illusion_metrics(render(pair.poisoned, pair.cameras, v.index), v.target, v.mask, lpips)
-        naive = illusion_metrics(render(pair.clean, pair.cameras, v.index), v.target, v.mask, lpips)
-        per_view[v.name] = {**ours, **{f"clean_{k}": x for k, x in naive.items()}}
+        ours[v.name] = illusion_metrics(render(pair.poisoned, pair.cameras, v.index), v.target, v.mask, lpips)
+        naive[v.name] = illusion_metrics(render(pair.clean, pair.cameras, v.index), v.target, v.mask, lpips)
+    per_view = {name: {**ours[name], **{f"clean_{k}": x for k, x in naive[name].items()}} for name in ours}
     out: dict[str, Any] = {}
-    for key in ("psnr", "ssim", "lpips"):
-        out[f"v_illusory_{key}"] = _mean([m[key] for m in per_view.values()])
-        out[f"v_illusory_clean_{key}"] = _mean([m[f"clean_{key}"] for m in per_view.values()])
+    for (key, value), clean in zip(v_illusory(ours).items(), v_illusory(naive).values(), strict=True):
+        out[f"v_illusory_{key}"], out[f"v_illusory_clean_{key}"] = value, clean
     test, test_clean = _held_out_metrics(pair.poisoned), _held_out_metrics(pair.clean)
     for key in ("psnr", "ssim", "lpips"):
         out[f"v_test_{key}"] = test[key]
@@ -477,166 +472,33 @@ def summary_lines(report: dict[str, Any], output: Path) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- HTML
-_CSS = """
-body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
-h1 { margin-bottom: 0.2em; } h2 { margin-top: 1.6em; border-bottom: 1px solid #ddd; }
-table { border-collapse: collapse; margin: 0.6em 0; } td, th { padding: 4px 10px; border: 1px solid #ccc; }
-th { background: #f4f4f4; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
-.verdict { display: inline-block; padding: 6px 14px; border-radius: 4px; font-weight: bold; color: #fff; }
-.ok { background: #2a7d2a; } .fail { background: #b03030; }
-.row { display: flex; gap: 6px; overflow-x: auto; }
-figure { margin: 4px 0; text-align: center; font-size: 12px; }
-figure img { width: 200px; image-rendering: pixelated; border: 1px solid #ccc; }
-.strip figure img { width: 170px; }
-.small { color: #666; font-size: 13px; } code { background: #f4f4f4; padding: 1px 4px; }
-"""
-
-
 def _fmt(value: Any, digits: int = 2) -> str:
+    """A table cell or inline number: ``–`` for a missing value, yes/no, floats to ``digits``."""
     if value is None:
         return "–"
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
         return f"{value:.{digits}f}"
-    return html.escape(str(value))
-
-
-def _table(header: list[str], rows: list[list[Any]], digits: int = 2) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join(
-        "<tr>"
-        + "".join(
-            f'<td class="num">{_fmt(c, digits)}</td>'
-            if isinstance(c, float | int) and not isinstance(c, bool)
-            else f"<td>{_fmt(c, digits)}</td>"
-            for c in row
-        )
-        + "</tr>"
-        for row in rows
-    )
-    return f"<table><tr>{head}</tr>{body}</table>"
-
-
-def _figure(src: str, caption: str) -> str:
-    src, caption = html.escape(src), html.escape(caption)
-    return f'<figure><img src="{src}" alt="{caption}"><figcaption>{caption}</figcaption></figure>'
+    return str(value)
 
 
 def render_html(report: dict[str, Any]) -> str:
-    """A self-contained page (inline CSS, images referenced relative to the report folder)."""
-    r = report
-    ok = bool(r["attack_success"])
-    verdict = "attack succeeded" if ok else "attack failed"
-    parts = [
-        "<!doctype html><html><head><meta charset='utf-8'><title>StealthAttack report</title>",
-        f"<style>{_CSS}</style></head><body>",
-        "<h1>StealthAttack report</h1>",
-        f"<p class='small'>poisoned run <code>{html.escape(r['poisoned_run'])}</code> (step {r['step']})<br>"
-        f"clean run <code>{html.escape(r['clean_run'])}</code> (step {r['step_clean']})<br>"
-        f"written {html.escape(r['created'])}</p>",
-        f"<p><span class='verdict {'ok' if ok else 'fail'}'>{verdict}</span> &nbsp; "
-        f"V-illusory PSNR {_fmt(r['v_illusory_psnr'])} dB (needs &gt; 25), "
-        f"V-test drop {_fmt(r['v_test_drop'])} dB (needs &le; 3)</p>",
-        "<h2>Metrics</h2>",
-        _table(
-            ["", "V-illusory PSNR ↑", "SSIM ↑", "LPIPS ↓", "V-test PSNR ↑", "SSIM ↑", "LPIPS ↓", "Gaussians"],
-            [
-                [
-                    "clean 3DGS (no attack)",
-                    r["v_illusory_clean_psnr"],
-                    r["v_illusory_clean_ssim"],
-                    r["v_illusory_clean_lpips"],
-                    r["v_test_psnr_clean"],
-                    r["v_test_ssim_clean"],
-                    r["v_test_lpips_clean"],
-                    r["n_gaussians_clean"],
-                ],
-                [
-                    "poisoned (StealthAttack)",
-                    r["v_illusory_psnr"],
-                    r["v_illusory_ssim"],
-                    r["v_illusory_lpips"],
-                    r["v_test_psnr"],
-                    r["v_test_ssim"],
-                    r["v_test_lpips"],
-                    r["n_gaussians"],
-                ],
-            ],
-            digits=3,
-        ),
-        "<p class='small'>V-illusory: masked metrics of the poisoned-view render against the illusion target "
-        f"(PSNR over the mask's pixels, SSIM and LPIPS on the mask's bounding box, outside zeroed). "
-        f"V-test: held-out views against their clean images. {r['n_poison_gaussians']} of the poisoned run's "
-        f"Gaussians are poison.</p>",
-    ]
-    if r.get("lpips_unavailable"):
-        parts.append(f"<p class='small'>LPIPS unavailable: {html.escape(r['lpips_unavailable'])}</p>")
-    parts += [
-        "<h3>Success under the paper's thresholds</h3>",
-        _table(
-            ["V-illusory PSNR >", "V-test drop ≤", "success"],
-            [[*key.split("/"), value] for key, value in r["success_thresholds"].items()],
-        ),
-        "<h3>Per poisoned view</h3>",
-        _table(
-            ["view", "PSNR", "SSIM", "LPIPS", "clean PSNR", "clean SSIM", "clean LPIPS"],
-            [
-                [name, m["psnr"], m["ssim"], m["lpips"], m["clean_psnr"], m["clean_ssim"], m["clean_lpips"]]
-                for name, m in r["v_illusory_per_view"].items()
-            ],
-            digits=3,
-        ),
-        "<h2>Poisoned views</h2>",
-    ]
-    for name, files in r["images"]["poisoned_views"].items():
-        m = r["v_illusory_per_view"][name]
-        parts.append(f"<h3>{html.escape(name)}</h3><div class='row'>")
-        parts += [
-            _figure(files["target"], "target (illusion composite)"),
-            _figure(files["poisoned"], f"poisoned render, {_fmt(m['psnr'])} dB in the mask"),
-            _figure(files["clean"], f"clean render, {_fmt(m['clean_psnr'])} dB in the mask"),
-            _figure(files["poison_hidden"], "poisoned run with poison Gaussians hidden"),
-            _figure(files["mask"], "illusion mask"),
-            "</div>",
-        ]
-    if r["heldout_strip"]:
-        parts.append(
-            "<h2>Innocent (held-out) views</h2><p class='small'>rows: ground truth, clean, poisoned</p>"
-        )
-        for kind in ("gt", "clean", "poisoned"):
-            parts.append("<div class='row strip'>")
-            for s in r["heldout_strip"]:
-                psnr_txt = {
-                    "gt": s["name"],
-                    "clean": f"clean {_fmt(s['psnr_clean'])} dB",
-                    "poisoned": f"poisoned {_fmt(s['psnr_poisoned'])} dB",
-                }[kind]
-                parts.append(_figure(s["images"][kind], psnr_txt))
-            parts.append("</div>")
-    curve = r["neighbour_views"]
-    parts += [
-        "<h2>Neighbouring views</h2>",
-        "<p class='small'>PSNR between the clean and the poisoned render of cameras orbited about the "
-        "scene's "
-        "vertical axis from each poisoned view (the paper's Fig. 8): the attack should matter only within "
-        "a few degrees.</p>",
-        _figure(r["images"]["figures"]["neighbour_curve"], "PSNR clean vs poisoned by angle").replace(
-            "<img ", '<img style="width:600px" '
-        ),
-        _table(
-            ["angle (°)", *[f"{a:g}" for a in curve["angles_deg"]]],
-            [["PSNR (dB)", *curve["psnr_mean"]]],
-            digits=1,
-        ),
-        "<h2>Figures</h2><p class='small'>"
-        + ", ".join(
-            f"<a href='{html.escape(v)}'>{html.escape(v)}</a>" for v in r["images"]["figures"].values() if v
-        )
-        + ", <a href='report.json'>report.json</a></p>",
-        "</body></html>",
-    ]
-    return "\n".join(parts)
+    """``report.html``: ``templates/report.html.j2`` filled from the report (autoescaped; inline CSS,
+    images referenced relative to the report folder)."""
+    import jinja2
+
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("stealth_ns.evaluation", "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters["fmt"] = _fmt
+    env.filters["fmt_angle"] = lambda angle: f"{angle:g}"
+    env.filters["threshold_row"] = lambda item: [*item[0].split("/"), item[1]]
+    return env.get_template("report.html.j2").render(r=report)
 
 
 def _listing(items: list[str]) -> str:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import math
 import os
 import re
 import shlex
@@ -32,6 +31,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.json_io import write_json_atomic
 
 #: Written into the run folder after a successful ``ns-train``; its presence (with the final
 #: checkpoint) is what "finished" means.
@@ -305,25 +305,3 @@ def train(
     }
     write_json_atomic(spec.marker_path, data)
     return record
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write JSON to ``path`` via a temporary file and a rename (never a half-written file)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    tmp.replace(path)
-
-
-def json_safe(obj: Any) -> Any:
-    """Numpy scalars -> Python numbers, non-finite floats -> None, tuples -> lists, paths -> str."""
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    if hasattr(obj, "item") and callable(obj.item) and getattr(obj, "ndim", 1) == 0:
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj

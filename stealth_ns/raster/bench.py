@@ -173,40 +173,19 @@ def run_raster_benchmark(
         {case: torch / cpp}, "speedup_fwd": {...}, "machine": {...}, "settings": {...}}``;
         skipped runs have ``forward_ms = forward_backward_ms = None`` and a ``note``.
     """
-    from stealth_ns.raster import cpp_backend, rasterization
-    from stealth_ns.raster.projection import project_gaussians, quat_scale_to_covar
-    from stealth_ns.raster.tiles import isect_tiles, tile_grid
+    from stealth_ns.raster import cpp_backend
 
     if threads is not None:
         torch.set_num_threads(int(threads))
     case_list = [c if isinstance(c, BenchCase) else BenchCase(*c) for c in (cases or DEFAULT_CASES)]
     say = print if verbose else (lambda *a, **k: None)
-
-    compile_s = None
-    if "cpp" in backends:
-        t0 = time.perf_counter()
-        ext = cpp_backend.load_extension()
-        compile_s = time.perf_counter() - t0
-        if ext is None:
-            raise RuntimeError(f"compiled CPU rasterizer unavailable: {cpp_backend.compile_error()}")
+    compile_s = _load_cpp() if "cpp" in backends else None
 
     rows: list[dict[str, Any]] = []
     ref_cost_per_isect: float | None = None  # seconds of one torch fwd+bwd per intersection
     for case in case_list:
-        scene = make_synthetic_scene(case.n_gaussians, case.width, case.height)
-        target = scene.pop("target")
-        viewmats, Ks = scene.pop("viewmats"), scene.pop("Ks")
-        with torch.no_grad():
-            covars = quat_scale_to_covar(scene["quats"], scene["scales"])
-            radii, means2d, depths, _ = project_gaussians(
-                scene["means"], covars, viewmats, Ks, case.width, case.height
-            )
-            tw, th = tile_grid(case.width, case.height, 16)
-            n_isects = int(isect_tiles(means2d, radii, depths, 16, tw, th)[1].numel())
-        leaves = {k: v.clone().requires_grad_(True) for k, v in scene.items()}
-
+        workload = _Workload.of(case)
         for backend in backends:
-            forward, forward_backward = _make_step(rasterization, leaves, viewmats, Ks, case, target, backend)
             row: dict[str, Any] = {
                 "name": case.name,
                 "n_gaussians": case.n_gaussians,
@@ -215,38 +194,26 @@ def run_raster_benchmark(
                 "backend": backend,
                 "forward_ms": None,
                 "forward_backward_ms": None,
-                "n_isects": n_isects,
+                "n_isects": workload.n_isects,
                 "repeats": 0,
                 "note": "",
             }
             if backend == "cpp":
                 n_rep, n_warm = repeats, warmup
             else:
-                n_rep, n_warm = reference_repeats, 1
-                if ref_cost_per_isect is not None:
-                    predicted = ref_cost_per_isect * n_isects
-                    if predicted * (1 + 2 * n_rep) > reference_budget_s:
-                        fit = int((reference_budget_s / predicted - 1) // 2)
-                        if fit < 1:
-                            row["note"] = (
-                                f"skipped: predicted {predicted:.0f} s per forward+backward "
-                                f"(x3 runs) exceeds the {reference_budget_s:.0f} s budget"
-                            )
-                            say(f"[bench] {case.name} {backend}: {row['note']}")
-                            rows.append(row)
-                            continue
-                        n_rep = fit
-                        row["note"] = f"repeats reduced to {fit} to fit the {reference_budget_s:.0f} s budget"
+                n_warm = 1
+                n_rep, row["note"] = _reference_repeats(
+                    reference_repeats, ref_cost_per_isect, workload.n_isects, reference_budget_s
+                )
+                if n_rep == 0:
+                    say(f"[bench] {case.name} {backend}: {row['note']}")
+                    rows.append(row)
+                    continue
             say(f"[bench] {case.name} {backend}: {n_warm} warm-up + {n_rep} timed runs ...", flush=True)
             t_case = time.perf_counter()
-            # warm-up (fwd+bwd also warms the forward path)
-            for _ in range(n_warm):
-                forward_backward()
-            fb_ms = _median_ms(forward_backward, n_rep, 0)
-            with torch.enable_grad():
-                f_ms = _median_ms(forward, n_rep, 0)
-            if backend != "cpp" and n_isects > 0:
-                ref_cost_per_isect = fb_ms / 1e3 / n_isects
+            f_ms, fb_ms = workload.time_step(backend, n_rep, n_warm)
+            if backend != "cpp" and workload.n_isects > 0:
+                ref_cost_per_isect = fb_ms / 1e3 / workload.n_isects
             row.update(forward_ms=f_ms, forward_backward_ms=fb_ms, repeats=n_rep)
             say(
                 f"[bench] {case.name} {backend}: forward {f_ms:.1f} ms, forward+backward {fb_ms:.1f} ms "
@@ -254,15 +221,7 @@ def run_raster_benchmark(
             )
             rows.append(row)
 
-    speedup_fb: dict[str, float | None] = {}
-    speedup_f: dict[str, float | None] = {}
-    for case in case_list:
-        by = {r["backend"]: r for r in rows if r["name"] == case.name}
-        cpp, ref = by.get("cpp"), by.get("torch")
-        ok = cpp and ref and cpp["forward_backward_ms"] and ref["forward_backward_ms"]
-        speedup_fb[case.name] = ref["forward_backward_ms"] / cpp["forward_backward_ms"] if ok else None
-        speedup_f[case.name] = ref["forward_ms"] / cpp["forward_ms"] if ok else None
-
+    speedup_fb, speedup_f = _speedups(case_list, rows)
     result = {
         "cases": rows,
         "speedup_fwd_bwd": speedup_fb,
@@ -286,6 +245,99 @@ def run_raster_benchmark(
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(result, indent=2) + "\n")
     return result
+
+
+def _load_cpp() -> float:
+    """Build (or load the cached) compiled kernel; the seconds it took. RuntimeError if it fails."""
+    from stealth_ns.raster import cpp_backend
+
+    t0 = time.perf_counter()
+    ext = cpp_backend.load_extension()
+    compile_s = time.perf_counter() - t0
+    if ext is None:
+        raise RuntimeError(f"compiled CPU rasterizer unavailable: {cpp_backend.compile_error()}")
+    return compile_s
+
+
+@dataclass
+class _Workload:
+    """One case's scene: trainable leaves (means, quats, scales, opacities, SH colours), the camera,
+    the L1 target and the number of (tile, Gaussian) intersections."""
+
+    case: BenchCase
+    leaves: dict[str, torch.Tensor]
+    viewmats: torch.Tensor
+    Ks: torch.Tensor
+    target: torch.Tensor
+    n_isects: int
+
+    @classmethod
+    def of(cls, case: BenchCase) -> _Workload:
+        from stealth_ns.raster.projection import project_gaussians, quat_scale_to_covar
+        from stealth_ns.raster.tiles import isect_tiles, tile_grid
+
+        scene = make_synthetic_scene(case.n_gaussians, case.width, case.height)
+        target = scene.pop("target")
+        viewmats, Ks = scene.pop("viewmats"), scene.pop("Ks")
+        with torch.no_grad():
+            covars = quat_scale_to_covar(scene["quats"], scene["scales"])
+            radii, means2d, depths, _ = project_gaussians(
+                scene["means"], covars, viewmats, Ks, case.width, case.height
+            )
+            tw, th = tile_grid(case.width, case.height, 16)
+            n_isects = int(isect_tiles(means2d, radii, depths, 16, tw, th)[1].numel())
+        leaves = {k: v.clone().requires_grad_(True) for k, v in scene.items()}
+        return cls(case, leaves, viewmats, Ks, target, n_isects)
+
+    def time_step(self, backend: str, repeats: int, warmup: int) -> tuple[float, float]:
+        """Median milliseconds of forward and of forward + backward on ``backend``, after ``warmup``
+        forward + backward runs (which also warm the forward path)."""
+        from stealth_ns.raster import rasterization
+
+        forward, forward_backward = _make_step(
+            rasterization, self.leaves, self.viewmats, self.Ks, self.case, self.target, backend
+        )
+        for _ in range(warmup):
+            forward_backward()
+        fb_ms = _median_ms(forward_backward, repeats, 0)
+        with torch.enable_grad():
+            f_ms = _median_ms(forward, repeats, 0)
+        return f_ms, fb_ms
+
+
+def _reference_repeats(
+    repeats: int, cost_per_isect: float | None, n_isects: int, budget_s: float
+) -> tuple[int, str]:
+    """Timed runs of the slow ``torch`` backend within ``budget_s`` seconds, predicted from the
+    previous case's cost per intersection (unknown for the first case: ``repeats``), and a note:
+    0 runs when even one would not fit (with 1 warm-up and forward + backward twice per run)."""
+    if cost_per_isect is None:
+        return repeats, ""
+    predicted = cost_per_isect * n_isects
+    if predicted * (1 + 2 * repeats) <= budget_s:
+        return repeats, ""
+    fit = int((budget_s / predicted - 1) // 2)
+    if fit < 1:
+        return 0, (
+            f"skipped: predicted {predicted:.0f} s per forward+backward "
+            f"(x3 runs) exceeds the {budget_s:.0f} s budget"
+        )
+    return fit, f"repeats reduced to {fit} to fit the {budget_s:.0f} s budget"
+
+
+def _speedups(
+    cases: Sequence[BenchCase], rows: list[dict[str, Any]]
+) -> tuple[dict[str, float | None], dict[str, float | None]]:
+    """Per case, torch / cpp time of forward + backward and of forward (None unless both ran)."""
+    speedup_fb: dict[str, float | None] = {}
+    speedup_f: dict[str, float | None] = {}
+    for case in cases:
+        by = {r["backend"]: r for r in rows if r["name"] == case.name}
+        cpp, ref = by.get("cpp"), by.get("torch")
+        ok = cpp and ref and cpp["forward_backward_ms"] and ref["forward_backward_ms"]
+        speedup_fb[case.name] = ref["forward_backward_ms"] / cpp["forward_backward_ms"] if ok else None
+        speedup_f[case.name] = ref["forward_ms"] / cpp["forward_ms"] if ok else None
+    return speedup_fb, speedup_f
 
 
 def format_table(result: dict[str, Any]) -> str:

@@ -137,30 +137,60 @@ def rasterization(
         raise ValueError("absgrad is only computed by gsplat's CUDA backward; use absgrad=False on CPU")
     if rasterize_mode != "classic":
         raise ValueError("the CPU rasterizers implement rasterize_mode='classic' only")
+    return _rasterize_cpu(
+        name,
+        means,
+        quats,
+        scales,
+        opacities,
+        colors,
+        viewmats,
+        Ks,
+        width,
+        height,
+        near_plane=near_plane,
+        far_plane=far_plane,
+        radius_clip=radius_clip,
+        eps2d=eps2d,
+        sh_degree=sh_degree,
+        tile_size=tile_size,
+        backgrounds=backgrounds,
+        render_mode=render_mode,
+    )
 
+
+def _rasterize_cpu(
+    name: str,
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    colors: Tensor,
+    viewmats: Tensor,
+    Ks: Tensor,
+    width: int,
+    height: int,
+    *,
+    near_plane: float,
+    far_plane: float,
+    radius_clip: float,
+    eps2d: float,
+    sh_degree: int | None,
+    tile_size: int,
+    backgrounds: Tensor | None,
+    render_mode: RenderMode,
+) -> tuple[Tensor, Tensor, dict]:
+    """:func:`rasterization` on the CPU backend ``name`` (``"cpp"`` or ``"torch"``): projection, the
+    per-camera features, tile intersection, rasterize-to-pixels; the info dict gsplat's strategy reads."""
     C = viewmats.shape[0]
     covars = quat_scale_to_covar(quats, scales)
     radii, means2d, depths, conics = project_gaussians(
         means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip
     )
     opac = opacities[None, :].expand(C, -1)
-
-    if sh_degree is not None:
-        campos = torch.linalg.inv(viewmats)[:, :3, 3]
-        dirs = means[None, :, :] - campos[:, None, :]
-        coeffs = colors if colors.dim() == 4 else colors[None].expand(C, -1, -1, -1)
-        feats = torch.clamp_min(spherical_harmonics(sh_degree, dirs, coeffs) + 0.5, 0.0)
-    else:
-        feats = colors if colors.dim() == 3 else colors[None].expand(C, -1, -1)
-
-    if render_mode in ("RGB+D", "RGB+ED"):
-        feats = torch.cat([feats, depths[..., None]], dim=-1)
-        if backgrounds is not None:
-            backgrounds = torch.cat([backgrounds, backgrounds.new_zeros(C, 1)], dim=-1)
-    elif render_mode in ("D", "ED"):
-        feats = depths[..., None]
-        if backgrounds is not None:
-            backgrounds = backgrounds.new_zeros(C, 1)
+    feats, backgrounds = _camera_features(
+        means, colors, viewmats, depths, sh_degree, backgrounds, render_mode
+    )
 
     tile_width, tile_height = tile_grid(width, height, tile_size)
     isect, raster = _cpu_kernels(name)
@@ -200,6 +230,39 @@ def rasterization(
         "backend": name,
     }
     return render_colors, render_alphas, info
+
+
+def _camera_features(
+    means: Tensor,
+    colors: Tensor,
+    viewmats: Tensor,
+    depths: Tensor,
+    sh_degree: int | None,
+    backgrounds: Tensor | None,
+    render_mode: RenderMode,
+) -> tuple[Tensor, Tensor | None]:
+    """What each camera blends per Gaussian, ``[C, N, D']``, and the matching backgrounds ``[C, D']``:
+    the colours (SH evaluated towards the camera when ``sh_degree`` is set, + 0.5, clamped at 0),
+    with the depth appended for ``RGB+D`` / ``RGB+ED``, or the depth alone for ``D`` / ``ED``
+    (background 0)."""
+    C = viewmats.shape[0]
+    if sh_degree is not None:
+        campos = torch.linalg.inv(viewmats)[:, :3, 3]
+        dirs = means[None, :, :] - campos[:, None, :]
+        coeffs = colors if colors.dim() == 4 else colors[None].expand(C, -1, -1, -1)
+        feats = torch.clamp_min(spherical_harmonics(sh_degree, dirs, coeffs) + 0.5, 0.0)
+    else:
+        feats = colors if colors.dim() == 3 else colors[None].expand(C, -1, -1)
+
+    if render_mode in ("RGB+D", "RGB+ED"):
+        feats = torch.cat([feats, depths[..., None]], dim=-1)
+        if backgrounds is not None:
+            backgrounds = torch.cat([backgrounds, backgrounds.new_zeros(C, 1)], dim=-1)
+    elif render_mode in ("D", "ED"):
+        feats = depths[..., None]
+        if backgrounds is not None:
+            backgrounds = backgrounds.new_zeros(C, 1)
+    return feats, backgrounds
 
 
 def _cpu_kernels(name: str):

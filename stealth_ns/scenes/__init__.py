@@ -39,13 +39,14 @@ from pathlib import Path
 import numpy as np
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.image_io import save_png
 from stealth_ns.scenes.presets import (
     BLENDER_PRESETS,
     DEFAULT_RESOLUTION,
     DEFAULT_VIEWS,
     PRESETS,
     ScenePlan,
-    make_plan,
+    scene_plan,
 )
 from stealth_ns.scenes.render import Intrinsics, RenderedView, render_view
 from stealth_ns.scenes.writer import (
@@ -61,8 +62,6 @@ from stealth_ns.scenes.writer import (
     write_json,
     write_manifest,
     write_ply,
-    write_png,
-    write_rgba_png,
 )
 
 __all__ = ["PRESETS", "SceneSummary", "make_scene", "parse_resolution", "split_indices"]
@@ -218,7 +217,7 @@ def make_scene(
     output = Path(output).expanduser().absolute()
     _check_output(output, overwrite)
 
-    plan: ScenePlan = make_plan(preset, int(seed), views)
+    plan: ScenePlan = scene_plan(preset, int(seed), views)
     intr = Intrinsics.from_fov(width, height, plan.hfov_deg)
     common = {
         "generator": "stealth_ns.scenes",
@@ -286,7 +285,7 @@ def _write_nerfstudio(output: Path, plan: ScenePlan, intr: Intrinsics, common: d
     pts, cols, origins = [], [], []
     for i, c2w in enumerate(plan.c2w):
         view = render_view(plan, intr, c2w)
-        write_png(output / image_path(i), view.image)
+        save_png(output / image_path(i), view.image)
         np.save(output / depth_path(i), view.depth)
         if i in train_set:
             xyz, rgb = _seed_points(rng, view, per_view)
@@ -328,7 +327,7 @@ def _write_blender(output: Path, plan: ScenePlan, intr: Intrinsics, common: dict
         (output / "depths" / split).mkdir(parents=True)
         for k, i in enumerate(range(start, stop)):
             view = render_view(plan, intr, plan.c2w[i])
-            write_rgba_png(output / split / f"r_{k}.png", view.rgba())
+            save_png(output / split / f"r_{k}.png", view.rgba())
             np.save(output / blender_depth_path(split, k), (view.depth * scale).astype(np.float32))
         write_json(
             output / f"transforms_{split}.json",

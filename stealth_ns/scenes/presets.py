@@ -502,7 +502,7 @@ def object_plan(seed: int, views: int) -> ScenePlan:
     )
 
 
-def make_plan(preset: str, seed: int, views: int) -> ScenePlan:
+def scene_plan(preset: str, seed: int, views: int) -> ScenePlan:
     """Build the :class:`ScenePlan` of ``preset`` (one of :data:`PRESETS`)."""
     if preset == "orbit":
         return orbit_plan(seed, views)

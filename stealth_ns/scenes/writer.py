@@ -19,8 +19,8 @@ Blender (preset ``object``; dataparser ``blender-data``)::
       depths/train/r_0.npy   float32 (H, W) z-depth, world units, 0 = background
       scene.json
 
-The same inputs give byte-identical files: PNGs carry no timestamps, JSON has sorted keys and
-floats rounded to a fixed number of decimals.
+The same inputs give byte-identical files: PNGs (:func:`stealth_ns.image_io.save_png`) carry no
+timestamps, JSON has sorted keys and floats rounded to a fixed number of decimals.
 """
 
 from __future__ import annotations
@@ -29,9 +29,9 @@ import json
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from stealth_ns.fingerprint import file_sha256
+from stealth_ns.image_io import to_uint8
 
 BLENDER_SPLITS = ("train", "val", "test")
 GENERATED = (
@@ -69,27 +69,10 @@ def blender_depth_path(split: str, k: int) -> str:
     return f"depths/{split}/r_{k}.npy"
 
 
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    """Float image in [0, 1] (any shape) to uint8 with rounding."""
-    return np.floor(np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-
-
-def write_png(path: Path, image: np.ndarray) -> None:
-    """Write an (H, W, 3) float [0, 1] or uint8 RGB image as PNG (no metadata, deterministic)."""
-    arr = image if image.dtype == np.uint8 else to_uint8(image)
-    Image.fromarray(np.ascontiguousarray(arr), mode="RGB").save(path, format="PNG", optimize=False)
-
-
-def write_rgba_png(path: Path, rgba: np.ndarray) -> None:
-    """Write an (H, W, 4) float [0, 1] RGBA image (straight alpha) as PNG (deterministic)."""
-    Image.fromarray(np.ascontiguousarray(to_uint8(rgba)), mode="RGBA").save(
-        path, format="PNG", optimize=False
-    )
-
-
 def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray) -> None:
-    """Write points ``xyz`` (N, 3) world units with colours ``rgb`` (N, 3) float [0, 1] as binary
-    little-endian PLY (float32 position, uchar colour), readable by open3d."""
+    """Write points ``xyz`` (N, 3) world units with colours ``rgb`` (N, 3), uint8 or float in [0, 1]
+    (:func:`~stealth_ns.image_io.to_uint8`), as binary little-endian PLY (float32 position, uchar
+    colour), readable by open3d."""
     n = xyz.shape[0]
     header = (
         "ply\nformat binary_little_endian 1.0\ncomment stealth-ns procedural seed points\n"
