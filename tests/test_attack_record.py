@@ -104,6 +104,8 @@ def test_record_of_an_older_run_reads_pngs_and_dataset_cameras(tmp_path):
     (back,) = AttackRecord.read(tmp_path, cameras=_Cameras([view])).views
     assert torch.equal(back.c2w, view.c2w) and torch.equal(back.mask, view.mask)
     assert torch.allclose(back.target, view.target, atol=0.5 / 255 + 1e-6)  # from the 8-bit PNG
+    (exact,) = AttackRecord.read(tmp_path, cameras=_Cameras([view]), rebuilt=[view]).views
+    assert torch.equal(exact.target, view.target)  # as the loaded pipeline rebuilt it: scores as before
 
 
 def test_missing_or_broken_records_are_one_line_errors(tmp_path):

@@ -12,14 +12,16 @@ A run's ``<run>/attack/`` folder holds
 
 :class:`AttackRecord` is that folder as a typed object: :meth:`AttackRecord.write` and
 :meth:`AttackRecord.read` are the only code that knows the file names and JSON keys. The JSON keys are
-those of the first version, so records of older runs still read (their targets come from the PNGs when
-``views.npz`` is missing, their cameras from the dataset when the JSON has none).
+those of the first version, so records of older runs still read (when ``views.npz`` is missing their
+targets come from the views the loaded pipeline rebuilt, else from the PNGs; their cameras from the
+dataset when the JSON has none).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -159,13 +161,16 @@ class AttackRecord:
         (attack_dir / RECORD_FILE).write_text(json.dumps(self.to_json(), indent=2, sort_keys=True))
 
     @classmethod
-    def read(cls, attack_dir: Path, cameras: Any = None) -> AttackRecord:
+    def read(cls, attack_dir: Path, cameras: Any = None, rebuilt: Sequence[PoisonView] = ()) -> AttackRecord:
         """The record of the run whose attack folder is ``attack_dir``.
 
         Args:
             attack_dir: ``<run>/attack``.
             cameras: the run's training cameras (nerfstudio ``Cameras``), for records that predate the
                 cameras in ``attack.json``; not needed otherwise.
+            rebuilt: the poisoned views as the run's loaded pipeline resolved them again (same config,
+                same dataset), for records that predate ``views.npz``: their exact float targets are
+                used instead of the 8-bit PNGs, so such a run scores as it did before.
 
         Raises:
             RecordError: no ``attack.json`` (a run trained without the attack), an unreadable one, or a
@@ -179,7 +184,7 @@ class AttackRecord:
             listed = [(int(v["index"]), str(v["name"]), v) for v in data["poisoned_views"]]
         except (OSError, ValueError, KeyError, TypeError) as err:
             raise RecordError(f"cannot read {path}: {type(err).__name__}: {err}") from None
-        images = _ViewImages(attack_dir)
+        images = _ViewImages(attack_dir, {v.index: v for v in rebuilt})
         views = [
             PoisonView(
                 index, name, *_camera(entry, index, cameras, path), *images.mask_and_target(index, name)
@@ -197,10 +202,12 @@ class AttackRecord:
 
 
 class _ViewImages:
-    """Targets and masks of a record: ``views.npz``, or the 8-bit PNGs of records that predate it."""
+    """Targets and masks of a record: ``views.npz``; for records that predate it the views the loaded
+    pipeline rebuilt, else the 8-bit PNGs."""
 
-    def __init__(self, attack_dir: Path) -> None:
+    def __init__(self, attack_dir: Path, rebuilt: dict[int, PoisonView]) -> None:
         self.attack_dir = attack_dir
+        self.rebuilt = rebuilt
         npz = attack_dir / VIEWS_FILE
         try:
             self.arrays = dict(np.load(npz)) if npz.is_file() else None
@@ -211,6 +218,8 @@ class _ViewImages:
         key = f"{index:04d}"
         if self.arrays is not None and f"target_{key}" in self.arrays and f"mask_{key}" in self.arrays:
             target, mask = self.arrays[f"target_{key}"], self.arrays[f"mask_{key}"]
+        elif self.arrays is None and index in self.rebuilt:
+            return self.rebuilt[index].mask.cpu(), self.rebuilt[index].target.cpu()
         else:
             try:
                 target = to_float32(read_image(self.attack_dir / f"view{key}_target.png"))[..., :3]

@@ -162,7 +162,9 @@ class RunPair:
         attack_dir = ours.config_path.parent / "attack"
         if not ours.attack_enabled or not AttackRecord.exists(attack_dir):
             raise StealthNSError(f"{poisoned} is not an attacked run (trained with the attack disabled?)")
-        record = AttackRecord.read(attack_dir, ours.pipeline.datamanager.train_dataset.cameras)
+        record = AttackRecord.read(
+            attack_dir, ours.pipeline.datamanager.train_dataset.cameras, ours.pipeline.poison_views
+        )
         pair = cls(ours, theirs, record)
         if pair.clean.attack_enabled:
             raise StealthNSError(
