@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from stealth_ns.json_io import write_json_atomic
+
 #: Written into the run folder (next to config.yml) when training starts.
 FINGERPRINT_FILE = "dataset.json"
 #: Bumped when the recipe changes; a recorded fingerprint of another version is recomputed.
@@ -69,7 +71,7 @@ def record_fingerprint(run_dir: Path, train_outputs: Any, data: Path | str | Non
     path = Path(run_dir) / FINGERPRINT_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
     record = {"data": None if data is None else str(data), "train": dataset_fingerprint(train_outputs)}
-    path.write_text(json.dumps(record, indent=2) + "\n")
+    write_json_atomic(path, record)
     return path
 
 

@@ -34,12 +34,11 @@ from stealth_ns.attack.illusion import (
 )
 from stealth_ns.attack.injection import PoisonPlacement, place_poison
 from stealth_ns.attack.record import (
-    DENSITY_GRID_FILE,
     INJECTION_FILES,
-    POISON_POINTS_FILE,
     AttackRecord,
     Injection,
     PoisonView,
+    write_injection_files,
 )
 from stealth_ns.attack.validation import validate_attack_config
 from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
@@ -47,6 +46,7 @@ from stealth_ns.attack.visibility import CameraDepths
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager, dataset_image_names
 from stealth_ns.errors import StealthNSError, fail
 from stealth_ns.fingerprint import record_fingerprint
+from stealth_ns.image_io import to_float32
 from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
 from stealth_ns.model import NEAR_PLANE, StealthSplatModel, viewmat_from_c2w
 from stealth_ns.viewer import StealthAttackPanel
@@ -138,13 +138,15 @@ def check_seed_points(model: StealthSplatModel, datamanager: StealthDataManager)
 
 def _named_seed_point_file(datamanager: StealthDataManager) -> str | None:
     """Why the seed-point file named by a nerfstudio-data transforms file gave no points, if it names one."""
-    from stealth_ns.dataset_check import ply_vertex_count, transforms_path
+    from stealth_ns.dataset_check import ply_vertex_count, read_json_object, transforms_path
 
     data = getattr(datamanager.config.dataparser, "data", None)
+    if data is None:
+        return None
+    path = transforms_path(Path(data))
     try:
-        path = transforms_path(Path(data))
-        ply = json.loads(path.read_text(encoding="utf-8")).get("ply_file_path")
-    except (TypeError, OSError, ValueError, AttributeError):
+        ply = read_json_object(path).get("ply_file_path")
+    except StealthNSError:  # not nerfstudio-data (colmap, blender): no named file
         return None
     if not isinstance(ply, str):
         return None
@@ -157,9 +159,8 @@ def _named_seed_point_file(datamanager: StealthDataManager) -> str | None:
 
 
 def rgb_float(image: torch.Tensor) -> torch.Tensor:
-    """[H, W, 3 or 4] uint8 or float cached image -> [H, W, 3] float in [0, 1]."""
-    rgb = image[..., :3].float()
-    return rgb / 255.0 if image.dtype == torch.uint8 else rgb
+    """[H, W, 3 or 4] uint8 or float cached image -> [H, W, 3] float32 in [0, 1], on the CPU."""
+    return torch.from_numpy(to_float32(image[..., :3]))
 
 
 def _target_image(view: PoisonView, clean: torch.Tensor) -> torch.Tensor:
@@ -466,10 +467,7 @@ class StealthPipeline(VanillaPipeline):
     def _write_injection_artifacts(self, placement: PoisonPlacement) -> None:
         if self.attack_dir is None:
             return
-        import open3d as o3d
-
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(placement.means.double().numpy()))
-        cloud.colors = o3d.utility.Vector3dVector(placement.colors.clamp(0, 1).double().numpy())
-        o3d.io.write_point_cloud(str(self.attack_dir / POISON_POINTS_FILE), cloud)
-        placement.grid.save_npz(self.attack_dir / DENSITY_GRID_FILE, extras={"kde": placement.kde.values})
+        write_injection_files(
+            self.attack_dir, placement.means, placement.colors, placement.grid, placement.kde
+        )
         self._write_record()

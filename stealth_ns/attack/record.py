@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from stealth_ns.attack.density import DensityGrid
 from stealth_ns.errors import StealthNSError
 from stealth_ns.image_io import read_image, save_png, to_float32
 from stealth_ns.json_io import json_safe
@@ -199,6 +200,21 @@ class AttackRecord:
     @staticmethod
     def exists(attack_dir: Path) -> bool:
         return (attack_dir / RECORD_FILE).is_file()
+
+
+def write_injection_files(
+    attack_dir: Path, means: Tensor, colors: Tensor, grid: DensityGrid, kde: DensityGrid
+) -> None:
+    """The injection's files: the poison centres with their colours (``poison_points.ply``; ``means``
+    ``[M, 3]`` scene units, ``colors`` ``[M, 3]`` RGB in [0, 1]) and the voxel density with its KDE
+    (``density_grid.npz``)."""
+    import open3d as o3d
+
+    attack_dir.mkdir(parents=True, exist_ok=True)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(means.double().cpu().numpy()))
+    cloud.colors = o3d.utility.Vector3dVector(colors.clamp(0, 1).double().cpu().numpy())
+    o3d.io.write_point_cloud(str(attack_dir / POISON_POINTS_FILE), cloud)
+    grid.save_npz(attack_dir / DENSITY_GRID_FILE, extras={"kde": kde.values})
 
 
 class _ViewImages:

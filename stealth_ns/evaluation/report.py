@@ -70,10 +70,6 @@ class LoadedRun:
         return self.pipeline.model
 
     @property
-    def train_names(self) -> list[str]:
-        return [Path(p).name for p in self.pipeline.datamanager.train_dataparser_outputs.image_filenames]
-
-    @property
     def attack_enabled(self) -> bool:
         attack = getattr(self.pipeline.config, "attack", None)
         return bool(attack is not None and attack.enabled)
