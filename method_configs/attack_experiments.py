@@ -309,12 +309,12 @@ _ORBIT_ONLY = Group("orbit")
 KDE_SCENES: tuple[str, ...] = tuple(s for s in SCENES if scene_kind(s) == "kde")
 
 
-def _single_view_run(scene: str) -> str:
+def single_view_run(scene: str) -> str:
     """Table 1's run of a scene: the median-indexed view (uniform) or the KDE Median view."""
     return "full" if scene_kind(scene) == "uniform" else "median"
 
 
-_TABLE1_RUNS = tuple(_single_view_run(s) for s in SCENES)
+_TABLE1_RUNS = tuple(single_view_run(s) for s in SCENES)
 _TABLE2_GROUPS = tuple(Group(s, level.capitalize(), V_ILLUSORY) for s in KDE_SCENES for level in KDE_LEVELS)
 _TABLE2_RUNS = tuple(g.level.lower() for g in _TABLE2_GROUPS)
 

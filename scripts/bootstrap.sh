@@ -24,7 +24,8 @@ fi
 # torch comes from the package registry (its CUDA build runs on CPU too). A local CPU-only
 # torch wheel does not work with nerfstudio: PyPI's torchvision needs the CUDA libraries.
 echo "bootstrap: installing stealth-ns and its dependencies into $VENV (first time: several minutes)"
+# the dev extras include Ray (the `cluster` extra: `stealth-ns bench attack --executor ray`, its tests)
 "$VENV/bin/python" -m pip install -q -e '.[dev]'
-"$VENV/bin/python" -c "import torch, torchvision, nerfstudio, gsplat, open3d" \
+"$VENV/bin/python" -c "import torch, torchvision, nerfstudio, gsplat, open3d, ray" \
     || { echo "bootstrap: the environment in $VENV is broken (see the import error above)" >&2; exit 1; }
 echo "bootstrap: ready ($VENV)"

@@ -7,12 +7,13 @@ one line (``stealth-ns: error: ...``) and exits with status 2, never a traceback
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import tyro
 
+from stealth_ns.defences.config import DefendConfig
 from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation.difficulty import RankViews
 
@@ -100,11 +101,13 @@ class Report:
     """config.yml (or run folder) of a clean run of the same scene (--pipeline.attack.enabled False)."""
     output: Path = Path("stealth-report")
     """Folder to write report.json, report.html, the figures and images/."""
+    defend: Path | None = None
+    """Output folder of `stealth-ns defend --run POISONED`: adds a "Defences" section to report.html."""
 
     def main(self) -> None:
         from stealth_ns.evaluation.report import summary_lines, write_report
 
-        report = write_report(self.poisoned, self.clean, self.output)
+        report = write_report(self.poisoned, self.clean, self.output, self.defend)
         print("\n".join(summary_lines(report, self.output)))
 
 
@@ -131,8 +134,40 @@ class BenchAttack:
     """Seed of the scenes, the training and the attack's noise."""
     dry_run: bool = False
     """Only list the runs: which would train, which are reused, with their ns-train commands."""
+    defend: bool = False
+    """Also Table D, stealth under defences: stealth-ns defend on each scene's Table 1 poisoned run
+    (adds Table 1; the input-filter defence retrains each of those runs once; docs/defences.md)."""
+    executor: Annotated[str, tyro.conf.arg(metavar="{local,ray}")] = "local"
+    """Where the trainings run: local (one after another on this machine) or ray (Ray tasks on a
+    cluster, in parallel; needs pip install 'stealth-ns[cluster]' and run folders on a file system
+    every node sees at the same path; docs/cluster.md)."""
+    ray_address: Annotated[
+        str | None, tyro.conf.arg(metavar="ADDR", help_behavior_hint="(default: RAY_ADDRESS, else local)")
+    ] = None
+    """With --executor ray: HOST:PORT of the Ray head (port 6379 by default), ray://HOST:PORT (Ray
+    Client), auto (the cluster started on this machine with `ray start`) or local (a new Ray
+    instance on this machine, stopped at the end)."""
+    ray_cpus_per_run: Annotated[
+        float | None, tyro.conf.arg(metavar="N", help_behavior_hint="(default: 1)")
+    ] = None
+    """With --executor ray: CPUs each training reserves, also its CPU threads."""
+    ray_gpus_per_run: Annotated[
+        float | None,
+        tyro.conf.arg(metavar="G", help_behavior_hint="(default: 1 if the cluster has GPUs, else 0)"),
+    ] = None
+    """With --executor ray: GPUs each training reserves (0.5: two trainings share one)."""
+    ray_max_retries: Annotated[
+        int | None,
+        tyro.conf.arg(metavar="N", help_behavior_hint="(default: 3)"),
+    ] = None
+    """With --executor ray: resubmissions of a run whose Ray worker or node was lost."""
+    ray_train_retries: Annotated[
+        int | None, tyro.conf.arg(metavar="N", help_behavior_hint="(default: 1)")
+    ] = None
+    """With --executor ray: retries of a training that failed (ns-train exited non-zero)."""
 
     def main(self) -> None:
+        from stealth_ns.evaluation.executors import ExecutorOptions
         from stealth_ns.evaluation.experiments import run_bench
         from stealth_ns.method_configs.attack_experiments import DEFAULT_SCENES
 
@@ -145,6 +180,15 @@ class BenchAttack:
             iterations=self.iterations,
             seed=self.seed,
             dry_run=self.dry_run,
+            defend=self.defend,
+            executor=ExecutorOptions(
+                name=self.executor,
+                address=self.ray_address,
+                cpus_per_run=self.ray_cpus_per_run,
+                gpus_per_run=self.ray_gpus_per_run,
+                max_retries=self.ray_max_retries,
+                train_retries=self.ray_train_retries,
+            ),
         )
 
 
@@ -203,6 +247,28 @@ class CheckData:
         print(summary)
 
 
+@dataclass
+class Defend:
+    """Run defences against an attacked run: can the poison be found, and what does removing it cost?"""
+
+    run: Path
+    """config.yml (or run folder) of the attacked run."""
+    output: Path = Path("stealth-defend")
+    """Folder for defend.json, defend.md, the figures, the pruned runs (pruned/) and the retrained
+    run (input-filter/)."""
+    clean: Path | None = None
+    """config.yml of a clean run of the same scene: its V-test and V-illusory as reference."""
+    options: Annotated[DefendConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DefendConfig)
+
+    def main(self) -> None:
+        from stealth_ns.evaluation.defend import run_defend
+
+        result = run_defend(self.run, self.output, self.options, self.clean)
+        print(f"\nwrote {self.output / 'defend.json'}, {self.output / 'defend.md'} and the figures")
+        print((self.output / "defend.md").read_text())
+        del result
+
+
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
 # tyro union) so that every command, nested ones included, gets its own --help.
 COMMANDS: dict[str, type] = {
@@ -214,6 +280,7 @@ COMMANDS: dict[str, type] = {
     "rank-views": RankViews,
     "seed-points": SeedPoints,
     "check-data": CheckData,
+    "defend": Defend,
 }
 
 

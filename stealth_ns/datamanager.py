@@ -77,6 +77,12 @@ class StealthDataManagerConfig(FullImageDatamanagerConfig):
     """nerfstudio's full-image datamanager options."""
 
     _target: type = field(default_factory=lambda: StealthDataManager)
+    input_filter: Literal["none", "wavelet", "gaussian"] = "none"
+    """A defence (stealth-ns defend's input-filter): denoise every training image the model receives,
+    after the attack's changes (:mod:`stealth_ns.defences.input_filter`). Evaluation images stay as
+    they are."""
+    input_filter_sigma: float = 1.0
+    """Standard deviation (pixels) of the gaussian input filter."""
 
 
 class StealthDataManager(FullImageDatamanager):
@@ -91,12 +97,14 @@ class StealthDataManager(FullImageDatamanager):
         super().__init__(*args, **kwargs)
         self.poison_targets: dict[int, Tensor] = {}
         self.noise: NoiseSpec | None = None
+        self._filtered: dict[int, Tensor] = {}  # input filter of the images that do not change per step
 
     def set_poison(self, targets: dict[int, Tensor], noise: NoiseSpec | None) -> None:
         """Training images from now on: ``targets`` (train index -> uint8 [H, W, C] I_ILL)
         replace their views; every other training view gets ``noise`` (None = no noise)."""
         self.poison_targets = dict(targets)
         self.noise = noise
+        self._filtered.clear()
 
     @property
     def train_image_names(self) -> list[str]:
@@ -108,13 +116,29 @@ class StealthDataManager(FullImageDatamanager):
     def next_train(self, step: int) -> tuple[Cameras, dict]:
         camera, data = super().next_train(step)
         index = int(camera.metadata["cam_idx"])
+        noised = False
         if index in self.poison_targets:
             data["image"] = self.poison_targets[index].to(data["image"].device)
         elif self.noise is not None:
             sigma = noise_sigma(step, self.noise.total_steps, self.noise.sigma0, self.noise.decay)
             if sigma > 0:
                 data["image"] = noisy_image(data["image"], sigma, self.noise.seed, index, step)
+                noised = True
+        if self.config.input_filter != "none":
+            data["image"] = self._filter(index, data["image"], cache=not noised)
         return camera, data
+
+    def _filter(self, index: int, image: Tensor, cache: bool) -> Tensor:
+        """The input filter of one training image (cached when the image is the same every step)."""
+        if cache and index in self._filtered:
+            return self._filtered[index]
+        from stealth_ns.defences.input_filter import filter_image
+
+        out = filter_image(image.cpu().numpy(), self.config.input_filter, self.config.input_filter_sigma)
+        result = torch.from_numpy(out).to(image.device)
+        if cache:
+            self._filtered[index] = result
+        return result
 
     def _load_images(self, split: Literal["train", "eval"], cache_images_device: Literal["cpu", "gpu"]):
         if cache_images_device == "cpu" and torch.device(self.device).type == "cpu":

@@ -76,3 +76,17 @@ def _swap_in_optimizer(
             group["params"][i] = new
             if state:
                 optimizer.state[new] = state
+
+
+def select_rows(tensors: dict, keep: Tensor) -> dict:
+    """``tensors`` with only the rows where ``keep`` ([N] bool) is True: every tensor whose first
+    dimension is N is indexed, everything else (scalars, other shapes, non-tensors) is kept as is.
+
+    For saved state (a checkpoint's ``gauss_params.*`` and gsplat's per-Gaussian statistics), where
+    no optimizer needs to follow; the model's live rows change through gsplat's ops or
+    :func:`append_rows`."""
+    n = keep.shape[0]
+    return {
+        k: v[keep] if isinstance(v, Tensor) and v.dim() > 0 and v.shape[0] == n else v
+        for k, v in tensors.items()
+    }

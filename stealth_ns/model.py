@@ -152,6 +152,8 @@ class StealthSplatModel(SplatfactoModel):
         # the dataparser's compositing colour (NaN: none); a buffer, so ns-eval and the viewer get it
         self.register_buffer("data_background", torch.full((3,), math.nan))
         self.render_filter: RenderFilter = "all"
+        #: ``[N]`` bool or None: outside training only these rows are drawn (a defence's pruning, ``kept``).
+        self.keep_mask: Tensor | None = None
         #: Applied to the viewer's renders only (its render threads), set by the viewer's attack panel.
         self.viewer_render_filter: RenderFilter = "all"
         self.camera_optimizer: CameraOptimizer = self.config.camera_optimizer.setup(
@@ -300,6 +302,19 @@ class StealthSplatModel(SplatfactoModel):
         finally:
             self.render_filter = previous
 
+    @contextlib.contextmanager
+    def kept(self, keep: Tensor | None) -> Iterator[None]:
+        """Renders inside the block (eval only) draw only the rows where ``keep`` ([N] bool) is True,
+        as if the others were pruned; None draws every row. The previous restriction is restored after."""
+        if keep is not None and tuple(keep.shape) != (self.num_points,):
+            raise ValueError(f"keep mask has shape {tuple(keep.shape)}, the model has {self.num_points} rows")
+        previous = self.keep_mask
+        self.keep_mask = None if keep is None else keep.to(device=self.device, dtype=torch.bool)
+        try:
+            yield
+        finally:
+            self.keep_mask = previous
+
     @torch.no_grad()
     def append_gaussians(
         self, means: Tensor, colors: Tensor, scales: Tensor, opacity: float, poison: bool = True
@@ -447,9 +462,70 @@ class StealthSplatModel(SplatfactoModel):
             poison = self.poison_mask
             chosen = poison if self.render_filter == "only_poison" else ~poison
             keep = chosen if keep is None else keep & chosen
+        if self.keep_mask is not None and not self.training:
+            keep = self.keep_mask if keep is None else keep & self.keep_mask
         if keep is not None:
             params = {k: v[keep] for k, v in params.items()}
         return params
+
+    def _camera_geometry(self, camera: Cameras, c2w: Tensor) -> tuple[Tensor, Tensor, int, int]:
+        """``(viewmat [1, 4, 4], K [1, 3, 3], W, H)`` of one camera at the model's downscale factor."""
+        scale_fac = self._get_downscale_factor()
+        camera.rescale_output_resolution(1 / scale_fac)
+        viewmat = viewmat_from_c2w(c2w)
+        K = camera.get_intrinsics_matrices().to(self.device)
+        W, H = int(camera.width.item()), int(camera.height.item())
+        camera.rescale_output_resolution(scale_fac)
+        return viewmat, K, W, H
+
+    def _rasterize(
+        self,
+        g: dict[str, Tensor],
+        colors: Tensor,
+        sh_degree: int | None,
+        viewmat: Tensor,
+        K: Tensor,
+        size: tuple[int, int],
+        render_mode: str,
+    ) -> tuple[Tensor, Tensor, dict]:
+        """The one call of the rasterizer: Gaussians ``g`` (log-scales, opacity logits) drawn with
+        ``colors`` (SH coefficients when ``sh_degree`` is set, else per-Gaussian values)."""
+        backend = self.rasterizer_backend  # first: resolving it sets the strategy's absgrad
+        return rasterization(
+            means=g["means"],
+            quats=g["quats"],
+            scales=torch.exp(g["scales"]),
+            opacities=torch.sigmoid(g["opacities"]).squeeze(-1),
+            colors=colors,
+            viewmats=viewmat,
+            Ks=K,
+            width=size[0],
+            height=size[1],
+            packed=False,
+            near_plane=NEAR_PLANE,
+            far_plane=1e10,
+            render_mode=render_mode,
+            sh_degree=sh_degree,
+            absgrad=self.strategy.absgrad,
+            rasterize_mode=self.config.rasterize_mode,
+            backend=backend,
+        )
+
+    def blend_weights(self, camera: Cameras) -> Tensor:
+        """``[N]`` accumulated alpha-blending weight of every Gaussian in one view (every row, no
+        filter): the sum over the view's pixels of ``T_i * alpha_i``, the share of the pixel the
+        Gaussian paints (0 when it is culled or fully hidden). Read off the renderer as the gradient
+        of the rendered image's sum with respect to a per-Gaussian colour, which is exactly that sum
+        on every backend (gsplat, compiled CPU, torch reference)."""
+        camera = camera.to(self.device)
+        viewmat, K, W, H = self._camera_geometry(camera, camera.camera_to_worlds)
+        g = {k: v.detach() for k, v in self.gauss_params.items() if k != POISON_TAG}
+        with torch.enable_grad():
+            probe = torch.zeros(self.num_points, 1, device=self.device, requires_grad=True)
+            colors = probe.expand(-1, 3)
+            render, _, _ = self._rasterize(g, colors, None, viewmat, K, (W, H), "RGB")
+            (grad,) = torch.autograd.grad(render[..., 0].sum(), probe)
+        return grad[:, 0]
 
     def get_outputs(self, camera: Cameras) -> dict[str, Tensor | list]:
         if not isinstance(camera, Cameras):
@@ -466,14 +542,8 @@ class StealthSplatModel(SplatfactoModel):
                 int(camera.width.item()), int(camera.height.item()), self._get_background_color()
             )
 
-        scale_fac = self._get_downscale_factor()
-        camera.rescale_output_resolution(1 / scale_fac)
-        viewmat = viewmat_from_c2w(c2w)
-        K = camera.get_intrinsics_matrices().to(self.device)
-        W, H = int(camera.width.item()), int(camera.height.item())
+        viewmat, K, W, H = self._camera_geometry(camera, c2w)
         self.last_size = (H, W)
-        camera.rescale_output_resolution(scale_fac)
-
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
         colors = torch.cat((g["features_dc"][:, None, :], g["features_rest"]), dim=1)
         if self.config.sh_degree > 0:
@@ -481,27 +551,7 @@ class StealthSplatModel(SplatfactoModel):
         else:
             colors = torch.sigmoid(colors).squeeze(1)
             sh_degree = None
-
-        backend = self.rasterizer_backend
-        render, alpha, self.info = rasterization(
-            means=g["means"],
-            quats=g["quats"],
-            scales=torch.exp(g["scales"]),
-            opacities=torch.sigmoid(g["opacities"]).squeeze(-1),
-            colors=colors,
-            viewmats=viewmat,
-            Ks=K,
-            width=W,
-            height=H,
-            packed=False,
-            near_plane=NEAR_PLANE,
-            far_plane=1e10,
-            render_mode=render_mode,
-            sh_degree=sh_degree,
-            absgrad=self.strategy.absgrad,
-            rasterize_mode=self.config.rasterize_mode,
-            backend=backend,
-        )
+        render, alpha, self.info = self._rasterize(g, colors, sh_degree, viewmat, K, (W, H), render_mode)
         if self.training:
             self.strategy.step_pre_backward(
                 self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info

@@ -163,7 +163,7 @@ def rgb_float(image: torch.Tensor) -> torch.Tensor:
     return torch.from_numpy(to_float32(image[..., :3]))
 
 
-def _target_image(view: PoisonView, clean: torch.Tensor) -> torch.Tensor:
+def training_target(view: PoisonView, clean: torch.Tensor) -> torch.Tensor:
     """The poisoned view's training image in the cache's dtype/channels (RGBA keeps its alpha)."""
     rgb = view.target
     if clean.dtype == torch.uint8:
@@ -270,7 +270,7 @@ class StealthPipeline(VanillaPipeline):
         targets = {}
         if cfg.gt_replacement:
             for v in self.poison_views:
-                targets[v.index] = _target_image(v, self.datamanager.cached_train[v.index]["image"])
+                targets[v.index] = training_target(v, self.datamanager.cached_train[v.index]["image"])
         noise = NoiseSpec(cfg.noise_sigma0, cfg.noise_decay, max_steps, cfg.seed) if cfg.view_noise else None
         self.datamanager.set_poison(targets, noise)
         return noise

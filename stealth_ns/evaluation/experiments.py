@@ -6,7 +6,8 @@ in nerfstudio-data, COLMAP or Blender format, used in place), plans the runs of 
 tables and scenes (a run shared by several tables is trained once), generates the presets and
 triangulates the seed points of folders without them (:mod:`stealth_ns.seed_points`, into a
 seeded copy under ``OUTPUT/scenes``), trains what is missing with a progress bar across runs
-(each ``ns-train``'s output goes to ``ns-train.log`` in its run folder), reuses finished runs
+(each ``ns-train``'s output goes to ``ns-train.log`` in its run folder; one after another, or as
+Ray tasks on a cluster with ``--executor ray``: :mod:`stealth_ns.evaluation.executors`), reuses finished runs
 and retrains interrupted ones (see :mod:`stealth_ns.evaluation.runs`), compares every poisoned
 run with the clean run of its scene (:func:`stealth_ns.evaluation.report.compare_runs`, cached
 as ``metrics.json`` in the poisoned run's folder) and writes ``OUTPUT/tables.md`` (markdown
@@ -38,6 +39,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.evaluation.executors import Executor, ExecutorOptions, Job, Outcome, make_executor
 from stealth_ns.evaluation.runs import (
     TRAIN_LOG,
     RunStatus,
@@ -45,7 +47,6 @@ from stealth_ns.evaluation.runs import (
     TrainSpec,
     finished_record,
     run_status,
-    train,
     train_progress,
 )
 from stealth_ns.fingerprint import file_sha256
@@ -63,6 +64,7 @@ from stealth_ns.method_configs.attack_experiments import (
     get_run,
     get_table,
     scene_kind,
+    single_view_run,
 )
 from stealth_ns.provenance import software_and_hardware
 
@@ -420,6 +422,10 @@ class Plan:
     """"skipping NAME: ..." for each folder of the default ``--scenes`` that is absent."""
     scene_errors: dict[str, str] = field(default_factory=dict)
     """Scenes that cannot be used (seed points or KDE views failed): their runs fail, the rest go on."""
+    executor: ExecutorOptions = field(default_factory=ExecutorOptions)
+    """Where the trainings run (``--executor``)."""
+    defend: bool = False
+    """Also Table D: ``stealth-ns defend`` on each scene's Table 1 run (``--defend``)."""
 
     def get(self, key: str) -> PlannedRun:
         for planned in self.runs:
@@ -456,6 +462,12 @@ class Plan:
         lines.append(f"  output:  {self.output}  (tables.md, results.json; runs under runs/)")
         lines.append(f"  method:  {self.method}, {self.iterations} iterations, seed {self.seed}")
         lines.append("  tables:  " + "; ".join(f"{t.number} {t.title}" for t in self.tables))
+        lines.append(f"  executor: {self.executor.describe()}")
+        if self.defend:
+            lines.append(
+                "  Table D: stealth-ns defend on each scene's Table 1 poisoned run after training "
+                "(into RUN/defend/; its input-filter defence retrains that run once)"
+            )
         for scene in self.scenes:
             lines += self._scene_lines(scene)
         lines += [f"  note:    {note}" for note in self.skipped]
@@ -800,8 +812,9 @@ def _git_commit() -> str | None:
     return commit if out.returncode == 0 and commit else None
 
 
-def environment(plan: Plan, started: float) -> dict[str, Any]:
-    """Method, iterations, seed, date, versions and hardware of this benchmark."""
+def environment(plan: Plan, started: float, executor: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Method, iterations, seed, date, versions and hardware of this benchmark, and where it trained
+    (``executor``: the executor's record; default: the plan's options)."""
     return {
         "method": plan.method,
         "iterations": plan.iterations,
@@ -812,6 +825,7 @@ def environment(plan: Plan, started: float) -> dict[str, Any]:
         "wall_seconds": round(time.time() - started, 1),
         **software_and_hardware(),
         "git_commit": _git_commit(),
+        "executor": executor or {"name": plan.executor.name},
     }
 
 
@@ -907,10 +921,14 @@ def build_results(plan: Plan, runs: dict[str, dict[str, Any]], env: dict[str, An
 
 
 def _write_outputs(
-    plan: Plan, runs: dict[str, dict[str, Any]], started: float, complete: bool
+    plan: Plan,
+    runs: dict[str, dict[str, Any]],
+    started: float,
+    complete: bool,
+    executor: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write results.json and tables.md (each replaced whole); returns the results document."""
-    results = json_safe(build_results(plan, runs, environment(plan, started), complete))
+    results = json_safe(build_results(plan, runs, environment(plan, started, executor), complete))
     plan.output.mkdir(parents=True, exist_ok=True)
     write_json_atomic(plan.output / "results.json", results)
     tmp = plan.output / ".tables.md.tmp"
@@ -919,76 +937,164 @@ def _write_outputs(
     return results
 
 
-def execute(plan: Plan) -> dict[str, Any]:
+class _Bench:
+    """The bookkeeping of one :func:`execute`: results entries, finished records, the bar and the log
+    lines; it hears the executor's events and outcomes (:mod:`stealth_ns.evaluation.executors`).
+
+    A poisoned run's metrics need its scene's clean run: with the local executor the clean run
+    always comes first (the plan's order); with Ray a poisoned run that finishes first waits, and
+    its metrics follow the clean run's line.
+    """
+
+    def __init__(self, plan: Plan, executor: Executor, bar: Any, started: float) -> None:
+        self.plan, self.executor, self.bar, self.t0 = plan, executor, bar, started
+        self.runs = {p.key: _run_entry(p) for p in plan.runs}
+        self.records: dict[str, TrainRecord] = {}
+        self.failures: list[str] = []
+        self.done = 0
+        self.reported: set[str] = set()
+        self.running: set[str] = set()
+        """Runs handed to a parallel executor and not finished yet (the bar's postfix)."""
+        self.waiting: dict[str, list[tuple[PlannedRun, TrainRecord]]] = {}
+        """Clean run key -> the poisoned runs of its scene that finished before it."""
+
+    def jobs(self) -> list[Job]:
+        errors = self.plan.scene_errors
+        blocked = {scene: f"scene {scene}: {err}" for scene, err in errors.items()}
+        return [Job(p.key, p.spec, blocked.get(p.run.scene)) for p in self.plan.runs]
+
+    def write(self, complete: bool = False) -> dict[str, Any]:
+        return _write_outputs(self.plan, self.runs, self.t0, complete, self.executor.record())
+
+    # ---- events
+    def started(self, job: Job) -> None:
+        p = self.plan.get(job.key)
+        training = job.blocked is None and p.status != "finished"
+        if self.executor.sequential:
+            self.bar.set_postfix_str(f"{p.key} {'reusing' if p.status == 'finished' else 'training'}")
+        elif training:
+            self.running.add(p.key)
+            self.bar.set_postfix_str(f"{len(self.running)} training on {self.executor.name}")
+        if training and self.bar.disable:
+            log = p.spec.run_dir / TRAIN_LOG
+            if self.executor.sequential:
+                print(f"[{self.done + 1}/{len(self.plan.runs)}] training {p.key} (log: {log})", flush=True)
+            else:
+                print(f"submitted {p.key} to {self.executor.name} (log: {log})", flush=True)
+
+    def line_callback(self, job: Job) -> Callable[[str], None]:
+        return _progress_parser(self.bar, job.key)
+
+    def retrying(self, job: Job, attempt: int, reason: str) -> None:
+        self.bar.write(f"RETRY {job.key} (attempt {attempt}): {reason}")
+
+    # ---- outcomes
+    def finish(self, o: Outcome) -> None:
+        """Record one finished (or failed) run, print its line, fill in metrics that can be computed."""
+        p, entry = self.plan.get(o.job.key), self.runs[o.job.key]
+        self.done += 1
+        tag = f"[{self.done}/{len(self.plan.runs)}]"
+        if p.key in self.running:
+            self.running.discard(p.key)
+            self.bar.set_postfix_str(f"{len(self.running)} training on {self.executor.name}")
+        if o.attempts:
+            entry["attempts"] = list(o.attempts)
+        if o.worker:
+            entry["worker"] = o.worker
+        self.reported.add(p.key)
+        if o.record is None:
+            if o.blocked:
+                entry.update(status="failed", error=o.error)
+            else:
+                entry.update(status="failed", error=o.error, log=str(p.spec.run_dir / TRAIN_LOG))
+            tries = len(o.attempts)
+            self.failures.append(p.key if tries < 2 else f"{p.key} after {tries} attempts")
+            self.bar.write(f"{tag} FAILED {p.key}: {o.error}")
+            self.bar.update(1)
+            self._release(p, tag)
+            if not o.blocked:
+                self.write()
+            return
+        record = self.records[p.key] = o.record
+        entry.update(
+            status="trained" if record.trained_now else "reused",
+            train_seconds=record.seconds,
+            trained_at=record.finished_at,
+            iterations=record.iterations,
+            log=str(p.spec.run_dir / TRAIN_LOG),
+        )
+        verb = "trained" if record.trained_now else "reused"
+        msg = f"{tag} {verb} {p.key} ({record.seconds:.0f} s of training)"
+        if o.worker and record.trained_now:
+            msg += f" on {o.worker.get('host')}"
+        if o.attempts:
+            msg += f" after {len(o.attempts)} failed attempt(s)"
+        clean_key = clean_run(p.run.scene).key
+        if not p.run.clean and clean_key not in self.reported:
+            self.waiting.setdefault(clean_key, []).append((p, record))
+            msg += f"; metrics once {clean_key} is done"
+        elif not p.run.clean:
+            msg += self._metrics(p, record, entry)
+        self.bar.write(msg)
+        self.bar.update(1)
+        self._release(p, tag)
+        self.write()
+
+    def _metrics(self, p: PlannedRun, record: TrainRecord, entry: dict[str, Any]) -> str:
+        note = _attach_metrics(self.plan, p, record, self.records, entry, self.bar)
+        if "metrics_error" in entry:
+            self.failures.append(f"{p.key} (metrics)")
+        return note
+
+    def _release(self, p: PlannedRun, tag: str) -> None:
+        """After a clean run: the metrics of the poisoned runs of its scene that waited for it."""
+        for q, record in self.waiting.pop(p.key, []):
+            note = self._metrics(q, record, self.runs[q.key])
+            self.bar.write(f"{' ' * len(tag)} metrics of {q.key}{note}")
+
+
+def execute(plan: Plan, executor: Executor | None = None) -> dict[str, Any]:
     """Train (or reuse) every run of the plan, compute the metrics, write tables.md and results.json.
 
-    Returns the results document. Failed runs are reported (with their log) and skipped; after
-    the outputs are written, a :class:`StealthNSError` lists them.
+    ``executor``: where the trainings run, opened (default: the plan's ``--executor``, opened and
+    closed here). Returns the results document. Failed runs are reported (with their log) and
+    skipped; after the outputs are written, a :class:`StealthNSError` lists them.
     """
     from tqdm import tqdm
 
+    owned = executor is None
+    if executor is None:
+        executor = make_executor(plan.executor)
+        executor.open()
     started = time.time()
-    runs = {p.key: _run_entry(p) for p in plan.runs}
-    records: dict[str, TrainRecord] = {}
-    failures: list[str] = []
     # the bar is drawn on a terminal only; elsewhere (a log file) the per-run lines tell the progress
     bar = tqdm(total=len(plan.runs), unit="run", desc="bench attack", dynamic_ncols=True, disable=None)
+    bench = _Bench(plan, executor, bar, started)
+    outcomes = executor.run(bench.jobs(), bench)
     try:
-        for i, p in enumerate(plan.runs, start=1):
-            entry = runs[p.key]
-            tag = f"[{i}/{len(plan.runs)}]"
-            doing = "reusing" if p.status == "finished" else "training"
-            bar.set_postfix_str(f"{p.key} {doing}")
-            if p.run.scene in plan.scene_errors:  # no seed points or no KDE views: nothing to train on
-                error = f"scene {p.run.scene}: {plan.scene_errors[p.run.scene]}"
-                entry.update(status="failed", error=error)
-                failures.append(p.key)
-                bar.write(f"{tag} FAILED {p.key}: {error}")
-                bar.update(1)
-                continue
-            if bar.disable and p.status != "finished":
-                print(f"{tag} training {p.key} (log: {p.spec.run_dir / TRAIN_LOG})", flush=True)
-            try:
-                record = train(p.spec, stream=False, on_line=_progress_parser(bar, p.key))
-            except StealthNSError as err:
-                entry.update(status="failed", error=str(err), log=str(p.spec.run_dir / TRAIN_LOG))
-                failures.append(p.key)
-                bar.write(f"{tag} FAILED {p.key}: {err}")
-                bar.update(1)
-                _write_outputs(plan, runs, started, complete=False)
-                continue
-            records[p.key] = record
-            entry.update(
-                status="trained" if record.trained_now else "reused",
-                train_seconds=record.seconds,
-                trained_at=record.finished_at,
-                iterations=record.iterations,
-                log=str(p.spec.run_dir / TRAIN_LOG),
-            )
-            verb = "trained" if record.trained_now else "reused"
-            msg = f"{tag} {verb} {p.key} ({record.seconds:.0f} s of training)"
-            if not p.run.clean:
-                msg += _attach_metrics(plan, p, record, records, entry, bar)
-                if "metrics_error" in entry:
-                    failures.append(f"{p.key} (metrics)")
-            bar.write(msg)
-            bar.update(1)
-            _write_outputs(plan, runs, started, complete=False)
+        for outcome in outcomes:
+            bench.finish(outcome)
     except KeyboardInterrupt:
         bar.close()
+        outcomes.close()  # Ray: the running tasks are cancelled (their ns-train stopped)
+        unfinished = "the unfinished run is" if executor.sequential else "unfinished runs are"
         print(
             "interrupted: finished runs are kept; run the same command again to resume "
-            "(the unfinished run is retrained)",
+            f"({unfinished} retrained)",
             file=sys.stderr,
         )
         raise
+    finally:
+        outcomes.close()
+        if owned:
+            executor.close()
     bar.close()
-    results = _write_outputs(plan, runs, started, complete=not failures)
-    if failures:
+    results = bench.write(complete=not bench.failures)
+    if bench.failures:
         raise StealthNSError(
-            f"{len(failures)} of {len(plan.runs)} runs failed ({', '.join(failures)}); their numbers are "
-            f"n/a in {plan.output / 'tables.md'}; the logs are named above. Run the same command again "
-            "to retry them (finished runs and their metrics are reused)"
+            f"{len(bench.failures)} of {len(plan.runs)} runs failed ({', '.join(bench.failures)}); their "
+            f"numbers are n/a in {plan.output / 'tables.md'}; the logs are named above. Run the same command "
+            "again to retry them (finished runs and their metrics are reused)"
         )
     return results
 
@@ -1024,15 +1130,44 @@ def run_bench(
     seed: int = 0,
     dry_run: bool = False,
     scene_options: dict[str, Any] | None = None,
+    executor: ExecutorOptions | None = None,
+    defend: bool = False,
 ) -> Plan | dict[str, Any]:
-    """``stealth-ns bench attack``: the plan (``dry_run``) or the results document."""
+    """``stealth-ns bench attack``: the plan (``dry_run``) or the results document.
+
+    ``executor``: where the trainings run (``--executor`` and its options; default local).
+    ``defend``: also Table D (:mod:`stealth_ns.evaluation.defence_table`), which needs Table 1's runs.
+    """
+    options = (executor or ExecutorOptions()).checked()
+    if defend:
+        tables = (*parse_tables(tables), 1)
     # without --dry-run this first plan only checks the input: the views are ranked below
     plan = bench_plan(output, tables, scenes, method, iterations, seed, scene_options, rank_views=dry_run)
+    plan.executor, plan.defend = options, defend
     for line in plan.skipped_scenes:
         print(line, flush=True)
     if dry_run:
         print(plan.describe(dry_run=True))
         return plan
+    runner = make_executor(options)
+    runner.open()  # before anything is made: a cluster that cannot be reached stops the bench here
+    try:
+        return _run_plan(plan, runner, tables, scenes, method, seed, scene_options)
+    finally:
+        runner.close()
+
+
+def _run_plan(
+    plan: Plan,
+    runner: Executor,
+    tables: Sequence[str | int] | None,
+    scenes: Sequence[str] | None,
+    method: str,
+    seed: int,
+    scene_options: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """Make the scenes (presets, seed points), plan again with them, and execute the plan."""
+    output = plan.output
     failed: dict[str, str] = {}
     for scene in plan.scenes:  # generate the presets, make the seed points of folders without them
         src = plan.sources[scene]
@@ -1047,12 +1182,43 @@ def run_bench(
                 str(err) if isinstance(err, StealthNSError) else f"{type(err).__name__}: {err}"
             )
             print(f"FAILED {scene}: {failed[scene]}", file=sys.stderr, flush=True)
+    options, defend = plan.executor, plan.defend
     plan = bench_plan(output, tables, scenes, method, plan.iterations, seed, scene_options, write_cache=True)
+    plan.executor, plan.defend = options, defend
     plan.scene_errors.update(failed)
     print(plan.describe(dry_run=False), flush=True)
     print(flush=True)
-    results = execute(plan)
+    failure = None
+    try:
+        results = execute(plan, runner)
+    except StealthNSError as err:  # the outputs are written; Table D still covers the scenes that trained
+        failure, results = err, json.loads((plan.output / "results.json").read_text())
+    if plan.defend:
+        results = add_defence_table(plan, results)
     print(f"\nwrote {plan.output / 'tables.md'} and {plan.output / 'results.json'}")
+    if failure is not None:
+        raise failure
+    return results
+
+
+def add_defence_table(plan: Plan, results: dict[str, Any]) -> dict[str, Any]:
+    """Table D over the scenes of Table 1 (``stealth-ns defend`` on each scene's Table 1 run) into
+    results.json (``table_d``) and tables.md; returns the results."""
+    from stealth_ns.evaluation.defence_table import defend_scenes
+
+    table1 = next(t for t in plan.tables if t.number == 1)
+    scenes = [s for s in plan.scenes if s in table1.scenes]
+    pairs = {s: (get_run(s, single_view_run(s)).key, clean_run(s).key) for s in scenes}
+    run_ids = {}
+    for key in {k for pair in pairs.values() for k in pair}:
+        record = finished_record(plan.get(key).spec)
+        if record is not None:
+            run_ids[key] = record.run_id
+    results["table_d"] = json_safe(defend_scenes(scenes, results["runs"], pairs, run_ids))
+    write_json_atomic(plan.output / "results.json", results)
+    tmp = plan.output / ".tables.md.tmp"
+    tmp.write_text(render_markdown(results))
+    tmp.replace(plan.output / "tables.md")
     return results
 
 
@@ -1215,6 +1381,19 @@ def _scene_text(name: str, scene: dict[str, Any]) -> str:
     return f"{name} ({where}{size}, {scene.get('views') or '?'} views)"
 
 
+def _executor_text(executor: Any) -> str:
+    """A sentence for tables.md when the runs trained as Ray tasks (nothing for local runs)."""
+    if not isinstance(executor, dict) or executor.get("name") != "ray":
+        return ""
+    amounts = {k: executor.get(f"{k.lower()}s_per_run") for k in ("CPU", "GPU")}
+    per_run = [f"{v:g} {k}" for k, v in amounts.items() if isinstance(v, (int, float))]
+    return (
+        f" Trained as Ray tasks on a cluster of {executor.get('nodes', '?')} node(s) "
+        f"({', '.join(per_run) or '?'} per run); the device above is the driver's, each run's node is "
+        "in results.json."
+    )
+
+
 def render_markdown(results: dict[str, Any]) -> str:
     """``tables.md``: a header (method, environment, what is not implemented), the tables, all runs."""
     env = results.get("environment", {})
@@ -1227,7 +1406,8 @@ def render_markdown(results: dict[str, Any]) -> str:
         f"{env.get('method', '?')}, {env.get('iterations', '?')} iterations, seed {env.get('seed', '?')}, "
         f"device {env.get('device', '?')} ({env.get('cpu_count', '?')} CPU cores); torch "
         f"{env.get('torch', '?')}, nerfstudio {env.get('nerfstudio', '?')}, "
-        f"gsplat {env.get('gsplat') or '–'}, numpy {env.get('numpy', '?')}. Scenes: {scene_text or '?'}.",
+        f"gsplat {env.get('gsplat') or '–'}, numpy {env.get('numpy', '?')}. Scenes: {scene_text or '?'}."
+        + _executor_text(env.get("executor")),
         "",
         "Every number is measured from the runs listed at the end; `results.json` next to this file has "
         "all of them, with timings. V-illusory: masked metrics of the poisoned view(s) against the "
@@ -1241,5 +1421,9 @@ def render_markdown(results: dict[str, Any]) -> str:
         lines += ["**Incomplete**: some runs have not finished (or failed); their cells read n/a.", ""]
     for number in sorted(results.get("tables", {}), key=int):
         lines.append(render_table(results["tables"][number]))
+    if results.get("table_d"):
+        from stealth_ns.evaluation.defence_table import render_table as render_defence_table
+
+        lines.append(render_defence_table(results["table_d"]))
     lines.append(_runs_table(results.get("runs", {})))
     return "\n".join(lines)

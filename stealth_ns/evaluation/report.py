@@ -128,6 +128,16 @@ def load_run(config_path: Path) -> LoadedRun:
     return LoadedRun(config_path, pipeline, step)
 
 
+def attack_record(run: LoadedRun, given: Path) -> AttackRecord:
+    """The attack record of an attacked run (``given``: its path as the user gave it, for the error)."""
+    attack_dir = run.config_path.parent / "attack"
+    if not run.attack_enabled or not AttackRecord.exists(attack_dir):
+        raise StealthNSError(f"{given} is not an attacked run (trained with the attack disabled?)")
+    return AttackRecord.read(
+        attack_dir, run.pipeline.datamanager.train_dataset.cameras, run.pipeline.poison_views
+    )
+
+
 @torch.no_grad()
 def render(
     run: LoadedRun, cameras: Any, index: int, c2w: np.ndarray | None = None, render_filter: str = "all"
@@ -155,13 +165,7 @@ class RunPair:
     @classmethod
     def load(cls, poisoned: Path, clean: Path) -> RunPair:
         ours, theirs = load_run(poisoned), load_run(clean)
-        attack_dir = ours.config_path.parent / "attack"
-        if not ours.attack_enabled or not AttackRecord.exists(attack_dir):
-            raise StealthNSError(f"{poisoned} is not an attacked run (trained with the attack disabled?)")
-        record = AttackRecord.read(
-            attack_dir, ours.pipeline.datamanager.train_dataset.cameras, ours.pipeline.poison_views
-        )
-        pair = cls(ours, theirs, record)
+        pair = cls(ours, theirs, attack_record(ours, poisoned))
         if pair.clean.attack_enabled:
             raise StealthNSError(
                 f"{clean} was trained with the attack on; train the clean run with "
@@ -261,7 +265,7 @@ def neighbour_curve(pair: RunPair, angles: tuple[float, ...] = NEIGHBOUR_ANGLES)
 
 
 # ---------------------------------------------------------------------------- the report
-def _figure_grid(path: Path, rows: list[list[tuple[str, np.ndarray]]]) -> Path:
+def figure_grid(path: Path, rows: list[list[tuple[str, np.ndarray]]]) -> Path:
     """A PNG of images in a grid with a title above each (matplotlib, Agg)."""
     import matplotlib
 
@@ -298,15 +302,29 @@ def _plot_neighbour_curve(path: Path, curve: dict[str, Any]) -> Path:
             ax.plot(angles, values, lw=1, alpha=0.5, label=name)
     ax.plot(angles, curve["psnr_mean"], "o-", color="C3", lw=2, label="mean over poisoned views")
     ax.axvspan(-5, 5, color="0.9", zorder=0)
-    ax.set_xlabel("rotation from the poisoned view (degrees)")
-    ax.set_ylabel("PSNR clean vs poisoned (dB)")
-    ax.set_title("Effect on neighbouring views")
+    save_plot(
+        fig,
+        ax,
+        path,
+        "rotation from the poisoned view (degrees)",
+        "PSNR clean vs poisoned (dB)",
+        "Effect on neighbouring views",
+    )
+    return path
+
+
+def save_plot(fig: Any, ax: Any, path: Path, xlabel: str, ylabel: str, title: str) -> None:
+    """Label a one-axes matplotlib figure (grid, legend), write it to ``path`` (PNG) and close it."""
+    import matplotlib.pyplot as plt
+
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
-    return path
 
 
 def _innocent_strip(pair: RunPair, images: Path) -> list[dict[str, Any]]:
@@ -341,7 +359,8 @@ def _innocent_strip(pair: RunPair, images: Path) -> list[dict[str, Any]]:
 REPORT_FILES = re.compile(
     r"(report\.json|report\.html|poisoned_views\.png|heldout_views\.png|neighbour_curve\.png"
     r"|images/view\d{4,}_(target|poisoned|clean|poison_hidden|mask)\.png"
-    r"|images/heldout\d{3,}_(gt|clean|poisoned)\.png)"
+    r"|images/heldout\d{3,}_(gt|clean|poisoned)\.png"
+    r"|defences/(roc|curves|poisoned_view)\.png)"
 )
 
 
@@ -371,7 +390,7 @@ def clear_previous_report(output: Path) -> list[Path]:
     """Delete the files an earlier report wrote into ``output`` (:data:`REPORT_FILES`); returns them."""
     if not output.is_dir():
         return []
-    candidates = [*output.glob("*"), *(output / "images").glob("*")]  # no images/: none
+    candidates = [*output.glob("*"), *(output / "images").glob("*"), *(output / "defences").glob("*")]
     removed = []
     for path in candidates:
         rel = path.relative_to(output).as_posix()
@@ -386,8 +405,11 @@ def clear_previous_report(output: Path) -> list[Path]:
     return removed
 
 
-def write_report(poisoned_config: Path, clean_config: Path, output: Path) -> dict[str, Any]:
-    """Compare the runs and write ``report.json``, ``report.html`` and PNGs into ``output``."""
+def write_report(
+    poisoned_config: Path, clean_config: Path, output: Path, defend: Path | None = None
+) -> dict[str, Any]:
+    """Compare the runs and write ``report.json``, ``report.html`` and PNGs into ``output``; with
+    ``defend`` (a ``stealth-ns defend`` folder of the poisoned run) also a "Defences" section."""
     output = Path(output)
     check_writable(output)  # before loading two runs (the slow part)
     pair = RunPair.load(Path(poisoned_config), Path(clean_config))
@@ -398,6 +420,11 @@ def write_report(poisoned_config: Path, clean_config: Path, output: Path) -> dic
     report["poisoned_run"] = str(pair.poisoned.config_path.resolve())
     report["clean_run"] = str(pair.clean.config_path.resolve())
     report["created"] = _dt.datetime.now().isoformat(timespec="seconds")
+    report["defences"] = None
+    if defend is not None:
+        from stealth_ns.evaluation.defend_outputs import report_section
+
+        report["defences"] = report_section(Path(defend), output, report["poisoned_run"])
 
     view_rows, view_files = [], {}
     for v in pair.views:
@@ -423,13 +450,13 @@ def write_report(poisoned_config: Path, clean_config: Path, output: Path) -> dic
                 ("illusion mask", panels["mask"]),
             ]
         )
-    _figure_grid(output / "poisoned_views.png", view_rows)
+    figure_grid(output / "poisoned_views.png", view_rows)
 
     strip = _innocent_strip(pair, images)
     if strip:
         kinds = ("ground truth", "clean", "poisoned")
         rows = [[(f"{s['name']} {kind}", s["arrays"][k]) for s in strip] for k, kind in enumerate(kinds)]
-        _figure_grid(output / "heldout_views.png", rows)
+        figure_grid(output / "heldout_views.png", rows)
     for s in strip:
         del s["arrays"]
     curve = neighbour_curve(pair)

@@ -1,0 +1,1 @@
+"""Defences against Gaussian-splatting poisoning: suspicion scores, detection metrics, pruning."""

@@ -1,0 +1,70 @@
+"""A defended model as a nerfstudio run: ``ns-eval``, ``ns-viewer`` and ``ns-export`` load it.
+
+The run is the attacked run with the pruned Gaussians removed from its final checkpoint. Layout,
+nerfstudio's: ``ROOT/DEFENCE/METHOD/TIMESTAMP/`` with ``config.yml`` (its output paths pointing
+there, the dataset path made absolute), ``nerfstudio_models/step-N.ckpt`` (the pipeline's state
+only: it can be evaluated and viewed, not resumed), the attack record (``attack/``) and dataset
+fingerprint copied, and ``defence.json`` saying what was pruned. ``ns-export gaussian-splat`` of it
+writes a PLY with the poison tag (:mod:`stealth_ns.export`).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+
+from stealth_ns.fingerprint import FINGERPRINT_FILE
+from stealth_ns.gaussian_rows import select_rows
+from stealth_ns.json_io import write_json_atomic
+from stealth_ns.safe_config import load_config
+
+GAUSS_PREFIX = "_model.gauss_params."
+STRATEGY_STATE = "_model._extra_state"
+
+
+def pruned_state(pipeline_state: dict[str, Any], keep: torch.Tensor) -> dict[str, Any]:
+    """A pipeline state dict with only the kept Gaussians (``keep``: [N] bool): the
+    ``gauss_params`` rows and gsplat's per-Gaussian statistics."""
+    state = dict(pipeline_state)
+    rows = select_rows({k: v for k, v in state.items() if k.startswith(GAUSS_PREFIX)}, keep)
+    state.update(rows)
+    if isinstance(state.get(STRATEGY_STATE), dict):
+        state[STRATEGY_STATE] = select_rows(state[STRATEGY_STATE], keep)
+    return state
+
+
+def write_pruned_run(
+    config_path: Path, checkpoint: Path, keep: torch.Tensor, root: Path, name: str, info: dict[str, Any]
+) -> Path:
+    """Write the run ``config_path`` (final checkpoint ``checkpoint``) pruned to ``keep`` under ``root``
+    as the experiment ``name``; returns its ``config.yml``. ``info`` goes into ``defence.json``."""
+    config = load_config(config_path)
+    run_dir = Path(config_path).parent
+    data = config.pipeline.datamanager.dataparser.data
+    if data is not None:
+        config.pipeline.datamanager.dataparser.data = Path(data).resolve()
+    config.output_dir = Path(root).resolve()
+    config.experiment_name = name
+    config.load_dir, config.load_checkpoint = None, None
+    base = config.get_base_dir()
+    if base.exists():
+        shutil.rmtree(base)  # an earlier defend of this output folder
+    (base / config.relative_model_dir).mkdir(parents=True)
+    loaded = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    state = pruned_state(loaded["pipeline"], keep.cpu())
+    torch.save(
+        {"step": loaded["step"], "pipeline": state}, base / config.relative_model_dir / checkpoint.name
+    )
+    (base / "config.yml").write_text(yaml.dump(config), encoding="utf-8")
+    if (run_dir / "attack").is_dir():
+        shutil.copytree(run_dir / "attack", base / "attack")
+    if (run_dir / FINGERPRINT_FILE).is_file():
+        shutil.copy2(run_dir / FINGERPRINT_FILE, base / FINGERPRINT_FILE)
+    n_kept = int(keep.sum())
+    info = {**info, "source_run": str(config_path), "n_kept": n_kept, "n_pruned": int(keep.numel()) - n_kept}
+    write_json_atomic(base / "defence.json", info)
+    return base / "config.yml"

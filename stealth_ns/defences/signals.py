@@ -1,0 +1,129 @@
+"""Per-Gaussian, per-training-view signals read off a trained model: what a defender can measure.
+
+Both return a ``[N, V]`` matrix (N Gaussians, V training views) that
+:func:`stealth_ns.defences.scores.concentration_scores` turns into a suspicion score:
+
+* :func:`view_weight_matrix` -- how much of each view each Gaussian paints (its accumulated
+  alpha-blending weight, from the renderer: :meth:`StealthSplatModel.blend_weights`);
+* :func:`gradient_energy_matrix` -- training dynamics: during a short fine-tune on the training
+  images, how much of each Gaussian's gradient comes from each view.
+
+Poison is meant to be seen from one view, so its support and its gradient concentrate in it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from stealth_ns.model import POISON_TAG, StealthSplatModel
+
+#: The trainable per-Gaussian parameters (every ``gauss_params`` entry but the poison tag).
+TRAINABLE = ("means", "scales", "quats", "features_dc", "features_rest", "opacities")
+
+
+def _progress(total: int, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="view", leave=False, disable=None)
+
+
+@torch.no_grad()
+def view_weight_matrix(model: StealthSplatModel, cameras: object, desc: str = "view support") -> np.ndarray:
+    """``[N, V]`` float32: accumulated alpha-blending weight of every Gaussian in every camera of
+    ``cameras`` (a nerfstudio ``Cameras`` of V views), in pixels (1 = one full pixel's worth).
+
+    Each column sums to the view's summed opacity (``accumulation``) over its pixels."""
+    n_views = len(cameras)
+    out = np.zeros((model.num_points, n_views), dtype=np.float32)
+    with _progress(n_views, desc) as bar:
+        for v in range(n_views):
+            out[:, v] = model.blend_weights(cameras[v : v + 1]).cpu().numpy()
+            bar.update(1)
+    return out
+
+
+@dataclass(frozen=True)
+class FineTune:
+    """The short fine-tune of :func:`gradient_energy_matrix`."""
+
+    epochs: int = 2
+    """Passes over the training views (each view once per pass, in a seeded random order)."""
+    lr_scale: float = 1.0
+    """Multiplies ``learning_rates`` (the run's final per-parameter rates)."""
+    seed: int = 0
+    """Order of the views."""
+
+
+def _view_loss(model: StealthSplatModel, camera: object, image: Tensor) -> Tensor:
+    """Mean L1 between the render of ``camera`` and ``image`` ([H, W, 3 or 4], as cached), with
+    gradients; images with alpha are composited onto the model's background as training does."""
+    outputs = model.get_outputs(camera.to(model.device))
+    gt = model.composite_with_background(model.get_gt_img(image), outputs["background"])
+    return (outputs["rgb"] - gt).abs().mean()
+
+
+def gradient_energy_matrix(
+    model: StealthSplatModel,
+    cameras: object,
+    images: Sequence[Tensor],
+    learning_rates: dict[str, float],
+    tune: FineTune = FineTune(),
+) -> np.ndarray:
+    """``[N, V]`` float32: per Gaussian and training view, the summed squared gradient of the view's
+    L1 loss with respect to the Gaussian's parameters (all of them: position, scale, rotation,
+    colour, opacity) over a short fine-tune of ``tune.epochs`` passes, one Adam step per view.
+
+    The model is fine-tuned in evaluation mode (no densification) and put back exactly as it was
+    afterwards. ``images[v]`` is view v's training image as the datamanager caches it
+    (``[H, W, C]``, uint8 or float); ``learning_rates`` gives each of :data:`TRAINABLE` its Adam rate.
+    """
+    params = {k: model.gauss_params[k] for k in TRAINABLE}
+    saved = {k: p.detach().clone() for k, p in params.items()}
+    was_training, requires = model.training, {k: p.requires_grad for k, p in params.items()}
+    energy = np.zeros((model.num_points, len(cameras)), dtype=np.float64)
+    optimizer = torch.optim.Adam(
+        [{"params": [p], "lr": learning_rates[k] * tune.lr_scale} for k, p in params.items()], eps=1e-15
+    )
+    order = np.random.default_rng(tune.seed)
+    model.eval()
+    try:
+        for p in params.values():
+            p.requires_grad_(True)
+        with _progress(tune.epochs * len(cameras), "training dynamics") as bar:
+            for _ in range(tune.epochs):
+                for v in order.permutation(len(cameras)):
+                    optimizer.zero_grad(set_to_none=True)
+                    with torch.enable_grad():
+                        _view_loss(model, cameras[int(v) : int(v) + 1], images[v]).backward()
+                    energy[:, v] += _row_energy(params)
+                    optimizer.step()
+                    bar.update(1)
+    finally:
+        with torch.no_grad():
+            for k, p in params.items():
+                p.copy_(saved[k])
+                p.requires_grad_(requires[k])
+        model.train(was_training)
+    return energy.astype(np.float32)
+
+
+def _row_energy(params: dict[str, torch.nn.Parameter]) -> np.ndarray:
+    """``[N]`` float64 sum over parameters of each row's squared gradient norm (0 without a gradient)."""
+    total = None
+    for p in params.values():
+        if p.grad is None:
+            continue
+        e = p.grad.detach().reshape(p.shape[0], -1).double().pow(2).sum(dim=1)
+        total = e if total is None else total + e
+    n = next(iter(params.values())).shape[0]
+    return np.zeros(n) if total is None else total.cpu().numpy()
+
+
+def poison_tags(model: StealthSplatModel) -> np.ndarray:
+    """``[N]`` bool ground truth: which Gaussians the attack injected (``gauss_params["poison"]``)."""
+    return (model.gauss_params[POISON_TAG].detach() > 0.5).cpu().numpy()

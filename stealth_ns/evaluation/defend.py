@@ -1,0 +1,279 @@
+"""``stealth-ns defend``: can the poison be found, and what does removing it cost?
+
+For an attacked run (and optionally the clean run of the same scene) every post-hoc defence of
+:mod:`stealth_ns.defences.posthoc` scores each Gaussian; against the ground-truth poison tag that
+gives ROC-AUC and average precision (:mod:`stealth_ns.defences.detection`). Each defence then prunes
+at its own rule (the operating point) and at a sweep of pruned fractions; for every cut the model is
+rendered again without the pruned Gaussians: **V-illusory after** (masked PSNR of the poisoned
+views against the illusion target) and **V-test cost** (held-out PSNR lost, in dB, against the
+undefended model). The training-time defence ``input-filter`` retrains the run on filtered images
+(:mod:`stealth_ns.defences.input_filter`) and is scored on the retrained model.
+
+Outputs in ``--output``: ``defend.json`` (every number), ``defend.md`` (the table), ``roc.png``,
+``curves.png`` (V-illusory vs V-test cost over the sweep), ``poisoned_view.png`` (the poisoned view
+before and after each defence), ``pruned/DEFENCE/...`` (each defended model as a nerfstudio run)
+and ``input-filter/`` (the retrained run). ``stealth-ns report --defend DIR`` adds the table and the
+figures to ``report.html``. docs/defences.md.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import hashlib
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from stealth_ns.attack.record import AttackRecord
+from stealth_ns.defences import detection
+from stealth_ns.defences.config import POSTHOC, DefendConfig
+from stealth_ns.defences.posthoc import DESCRIPTIONS, DefenceInputs, Scored, final_learning_rates, score
+from stealth_ns.defences.signals import poison_tags
+from stealth_ns.errors import StealthNSError
+from stealth_ns.evaluation.defend_outputs import fmt, pct, write_outputs
+from stealth_ns.evaluation.report import LoadedRun, attack_record, check_writable, load_run
+from stealth_ns.json_io import json_safe, write_json_atomic
+from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
+from stealth_ns.model import StealthSplatModel, render_camera
+from stealth_ns.pipeline import rgb_float, training_target
+from stealth_ns.provenance import software_and_hardware
+
+#: A defence defeats the attack when V-illusory falls below this (dB) ...
+DEFEAT_V_ILLUSORY = 15.0
+#: ... for at most this much held-out PSNR (dB).
+DEFEAT_V_TEST_COST = 0.5
+DEFEAT_RULE = f"V-illusory < {DEFEAT_V_ILLUSORY:g} dB for a V-test cost <= {DEFEAT_V_TEST_COST:g} dB"
+DEFEND_FILE = "defend.json"
+
+
+@dataclass
+class Target:
+    """The attacked run under defence."""
+
+    run: LoadedRun
+    record: AttackRecord
+    checkpoint: Path
+    learning_rates: dict[str, float]
+
+    @property
+    def model(self) -> StealthSplatModel:
+        return self.run.model
+
+
+def load_target(config_path: Path) -> Target:
+    """Load an attacked run: its pipeline, attack record, final checkpoint and final learning rates."""
+    from stealth_ns.safe_config import load_config
+
+    run = load_run(Path(config_path))
+    if not isinstance(run.model, StealthSplatModel):
+        raise StealthNSError(f"{config_path} is not a stealth-splat run (no poison tag to score against)")
+    record = attack_record(run, Path(config_path))
+    checkpoints = sorted((run.config_path.parent / "nerfstudio_models").glob("step-*.ckpt"))
+    rates = final_learning_rates(load_config(run.config_path).optimizers)
+    return Target(run, record, checkpoints[-1], rates)
+
+
+def defender_images(target: Target) -> list[torch.Tensor]:
+    """The training images as the defender has them: the poisoned views' illusion composites, the
+    clean images elsewhere (the view-consistency noise has decayed by the end of training)."""
+    dm = target.run.pipeline.datamanager
+    images = [dm.cached_train[i]["image"] for i in range(len(dm.train_dataset))]
+    for v in target.record.views:
+        images[v.index] = training_target(v, images[v.index])
+    return images
+
+
+@dataclass
+class Evaluator:
+    """V-illusory and V-test of a model with some Gaussians pruned (rendered, cached per mask).
+
+    ``run`` is the model rendered (the attacked run, or its clean or retrained counterpart); the
+    poisoned views are always rendered from the attacked run's cameras (``target``), as the report does.
+    """
+
+    target: Target
+    run: LoadedRun | None = None
+    _cache: dict[str, dict[str, float | None]] = field(default_factory=dict)
+
+    def __call__(self, pruned: np.ndarray | None) -> dict[str, float | None]:
+        """``v_illusory_psnr``/``_ssim`` (mean over the poisoned views) and ``v_test_psnr`` (mean over the
+        held-out views) of the model without the ``pruned`` ([N] bool) Gaussians."""
+        key = "none" if pruned is None or not pruned.any() else hashlib.sha1(np.packbits(pruned)).hexdigest()
+        if key not in self._cache:
+            keep = None if key == "none" else torch.from_numpy(~pruned)
+            model = (self.run or self.target.run).model
+            with model.kept(keep) if keep is not None else contextlib.nullcontext():
+                self._cache[key] = self._render_metrics()
+        return self._cache[key]
+
+    def _render_metrics(self) -> dict[str, float | None]:
+        run = self.run or self.target.run
+        model, pipeline = run.model, run.pipeline
+        cameras = self.target.run.pipeline.datamanager.train_dataset.cameras
+        per_view = {}
+        for v in self.target.record.views:
+            pred = render_camera(model, cameras[v.index : v.index + 1])["rgb"].float().cpu()
+            per_view[v.name] = illusion_metrics(pred, v.target, v.mask, None)
+        held_out = []
+        for camera, batch in pipeline.datamanager.fixed_indices_eval_dataloader:
+            outputs = render_camera(model, camera)
+            gt = model.composite_with_background(model.get_gt_img(batch["image"]), outputs["background"])
+            held_out.append(psnr(outputs["rgb"].float().cpu(), rgb_float(gt.cpu())))
+        ill = v_illusory(per_view)
+        return {
+            "v_illusory_psnr": ill["psnr"],
+            "v_illusory_ssim": ill["ssim"],
+            "v_test_psnr": float(np.mean(held_out)) if held_out else None,
+        }
+
+
+def cut_metrics(evaluate: Evaluator, baseline: dict, pruned: np.ndarray, is_poison: np.ndarray) -> dict:
+    """The numbers of one cut: what it removed, V-illusory after and the V-test cost (dB)."""
+    after = evaluate(pruned)
+    cost = None
+    if after["v_test_psnr"] is not None and baseline["v_test_psnr"] is not None:
+        cost = baseline["v_test_psnr"] - after["v_test_psnr"]
+    out = {**detection.operating_point(is_poison, pruned), **after, "v_test_cost": cost}
+    out["defeats_attack"] = bool(
+        after["v_illusory_psnr"] is not None
+        and cost is not None
+        and after["v_illusory_psnr"] < DEFEAT_V_ILLUSORY
+        and cost <= DEFEAT_V_TEST_COST
+    )
+    return out
+
+
+def defence_entry(
+    scored: Scored, evaluate: Evaluator, baseline: dict, is_poison: np.ndarray
+) -> dict[str, Any]:
+    """defend.json's entry of one post-hoc defence: detection, operating point, sweep."""
+    curve = []
+    for fraction in detection.sweep_fractions():
+        mask = detection.prune_mask_top_fraction(scored.scores, fraction)
+        curve.append({"fraction": fraction, **cut_metrics(evaluate, baseline, mask, is_poison)})
+    return {
+        "kind": "post-hoc",
+        "description": DESCRIPTIONS[scored.name],
+        "rule": scored.rule,
+        **detection.detection_metrics(scored.scores, is_poison),
+        "operating_point": cut_metrics(evaluate, baseline, scored.pruned, is_poison),
+        "curve": curve,
+        "score_seconds": scored.seconds,
+    }
+
+
+def run_posthoc(
+    target: Target, cfg: DefendConfig, output: Path
+) -> tuple[dict[str, Any], dict[str, Scored], dict[str, Any]]:
+    """Every post-hoc defence of ``cfg``: ``(baseline, scored, entries)``; writes the pruned runs."""
+    from stealth_ns.defences.pruned_run import write_pruned_run
+
+    model = target.model
+    is_poison = poison_tags(model)
+    evaluate = Evaluator(target)
+    baseline = evaluate(None)
+    inputs = DefenceInputs(
+        model,
+        target.run.pipeline.datamanager.train_dataset.cameras,
+        defender_images(target),
+        target.learning_rates,
+    )
+    scored, entries = {}, {}
+    for name in [d for d in cfg.defences if d in POSTHOC]:
+        print(f"defend: {name} ...", flush=True)
+        scored[name] = score(name, inputs, cfg)
+        entries[name] = defence_entry(scored[name], evaluate, baseline, is_poison)
+        info = {"defence": name, "rule": scored[name].rule}
+        keep = torch.from_numpy(~scored[name].pruned)
+        config = write_pruned_run(
+            target.run.config_path, target.checkpoint, keep, output / "pruned", name, info
+        )
+        entries[name]["pruned_run"] = str(config)
+        _print_entry(name, entries[name])
+    return baseline, scored, entries
+
+
+def _print_entry(name: str, entry: dict[str, Any]) -> None:
+    op = entry.get("operating_point") or {}
+    print(
+        f"defend: {name}: AUROC {fmt(entry.get('auroc'), 3)}, AP {fmt(entry.get('average_precision'), 3)}, "
+        f"poison removed {pct(op.get('poison_removed'))}, clean removed {pct(op.get('clean_removed'))}, "
+        f"V-illusory after {fmt(op.get('v_illusory_psnr'))} dB, "
+        f"V-test cost {fmt(op.get('v_test_cost'))} dB",
+        flush=True,
+    )
+
+
+def run_defend(
+    run: Path, output: Path, cfg: DefendConfig | None = None, clean: Path | None = None
+) -> dict[str, Any]:
+    """``stealth-ns defend``: every defence of ``cfg`` on the attacked run ``run``; writes ``output``."""
+    from stealth_ns.evaluation.filtered_retrain import run_input_filter
+
+    cfg = cfg or DefendConfig()
+    try:
+        cfg.validate()
+    except ValueError as err:
+        raise StealthNSError(str(err)) from None
+    output = Path(output)
+    _check_output(Path(run), output, clean)
+    t0 = time.perf_counter()
+    target = load_target(Path(run))
+    baseline, scored, entries = run_posthoc(target, cfg, output)
+    result: dict[str, Any] = {
+        "generator": "stealth-ns defend",
+        "created": _dt.datetime.now().isoformat(timespec="seconds"),
+        "run": str(target.run.config_path.resolve()),
+        "settings": cfg.__dict__,
+        "defeat_rule": DEFEAT_RULE,
+        "n_gaussians": int(target.model.num_points),
+        "n_poison": int(poison_tags(target.model).sum()),
+        "poisoned_views": [v.name for v in target.record.views],
+        "undefended": baseline,
+        "defences": entries,
+    }
+    if clean is not None:
+        result["clean"] = clean_reference(target, Path(clean))
+    if "input-filter" in cfg.defences:
+        result["defences"]["input-filter"] = run_input_filter(target, cfg, output, baseline)
+        _print_entry("input-filter", result["defences"]["input-filter"])
+    result["environment"] = software_and_hardware()
+    result["seconds"] = round(time.perf_counter() - t0, 1)
+    result = json_safe(result)
+    write_outputs(output, result, target, scored)
+    write_json_atomic(output / DEFEND_FILE, result)
+    return result
+
+
+def clean_reference(target: Target, clean: Path) -> dict[str, Any]:
+    """The clean run's V-test PSNR and V-illusory (what a perfect defence could reach), same renders."""
+    from stealth_ns.evaluation.report import RunPair
+
+    clean_run = load_run(clean)
+    pair = RunPair(target.run, clean_run, target.record)
+    pair.check_same_dataset()
+    evaluate = Evaluator(target, clean_run)
+    return {
+        "run": str(clean_run.config_path.resolve()),
+        "n_gaussians": int(clean_run.model.num_points),
+        **evaluate(None),
+    }
+
+
+def _check_output(run: Path, output: Path, clean: Path | None) -> None:
+    """One-line errors before anything is loaded: the output must be writable and not a run folder."""
+    check_writable(output)
+    for given in (run, clean):
+        if given is None:
+            continue
+        run_dir = (given if given.is_dir() else given.parent).resolve()
+        out = output.resolve()
+        if out == run_dir or run_dir in out.parents:
+            raise StealthNSError(
+                f"--output {output} is inside the run folder {run_dir}; choose another folder"
+            )
