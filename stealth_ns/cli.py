@@ -135,8 +135,9 @@ class BenchAttack:
     dry_run: bool = False
     """Only list the runs: which would train, which are reused, with their ns-train commands."""
     defend: bool = False
-    """Also Table D, stealth under defences: stealth-ns defend on each scene's Table 1 poisoned run
-    (adds Table 1; the input-filter defence retrains each of those runs once; docs/defences.md)."""
+    """Also Table D, stealth under defences: stealth-ns defend on each scene's Table 1 poisoned run into
+    OUTPUT/defend/SCENE (adds Table 1; its input-filter defence retrains each of those runs once;
+    docs/defences.md)."""
     executor: Annotated[str, tyro.conf.arg(metavar="{local,ray}")] = "local"
     """Where the trainings run: local (one after another on this machine) or ray (Ray tasks on a
     cluster, in parallel; needs pip install 'stealth-ns[cluster]' and run folders on a file system

@@ -32,6 +32,7 @@ def test_bench_defend_adds_table_d_and_reuses_it(tmp_path, fakes, monkeypatch, c
     calls = []
 
     def fake_defend(run, output, cfg=None, clean=None):
+        defend_module._check_output(Path(run), Path(output), Path(clean))  # the real one's guard
         calls.append((Path(run).parent.name, Path(clean).parent.name))
         return _fake_result(run)
 
@@ -48,8 +49,7 @@ def test_bench_defend_adds_table_d_and_reuses_it(tmp_path, fakes, monkeypatch, c
     assert "| none (undefended) |  |  |  | 27.50 | 0.00 |" in md
     saved = json.loads((out / "results.json").read_text())
     assert saved["table_d"]["rows"][0]["cells"]["orbit"][3] == "12.50"
-    run_dir = Path(saved["runs"]["orbit/full"]["run_dir"])
-    defend_json = json.loads((run_dir / "defend" / "defend.json").read_text())
+    defend_json = json.loads((out / "defend" / "orbit" / "defend.json").read_text())
     assert defend_json["bench_stamp"]["settings"]["defences"] == list(DEFENCES)
 
     calls.clear()

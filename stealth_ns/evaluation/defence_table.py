@@ -1,8 +1,8 @@
 """Table D of ``stealth-ns bench attack --defend``: stealth under defences, over the scenes of Table 1.
 
 For each scene, ``stealth-ns defend`` runs on Table 1's poisoned run (with the scene's clean run as
-reference) into ``RUN/defend/`` and is reused while that folder's ``defend.json`` belongs to the same
-finished run and settings. The table has one row per defence and, per scene, AUROC, AP, the share of
+reference) into ``OUTPUT/defend/SCENE/`` and is reused while that folder's ``defend.json`` belongs to
+the same finished run and settings. The table has one row per defence and, per scene, AUROC, AP, the share of
 poison removed, V-illusory after and the V-test cost at the defence's own rule.
 """
 
@@ -34,12 +34,13 @@ COLUMNS: tuple[tuple[str, str], ...] = (
 )
 
 
-def cached_defend(run_config: Path, clean_config: Path, run_id: str, cfg: DefendConfig) -> tuple[dict, bool]:
-    """``stealth-ns defend`` of one finished run into ``RUN/defend/`` (output in ``defend.log``), or its
-    earlier result when made for the same run (``run_id``: the run's marker) with the same settings."""
+def cached_defend(
+    run_config: Path, clean_config: Path, run_id: str, cfg: DefendConfig, out: Path
+) -> tuple[dict, bool]:
+    """``stealth-ns defend`` of one finished run into ``out`` (its output in ``defend.log``), or the
+    earlier result there when made for the same run (``run_id``: the run's marker) and settings."""
     from stealth_ns.evaluation.defend import run_defend
 
-    out = Path(run_config).parent / DEFEND_DIR
     stamp = json.loads(json.dumps({"run_id": run_id, "settings": asdict(cfg)}))  # as read back
     try:
         previous = json.loads((out / "defend.json").read_text())
@@ -108,9 +109,9 @@ def render_table(data: dict[str, Any]) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     lines += [
         "",
-        "- `stealth-ns defend` on each scene's Table 1 poisoned run (its folder's `defend/` has defend.json, "
-        "the figures and the pruned runs). Each defence prunes at its own rule (docs/defences.md); "
-        "V-illusory after and the V-test cost are rendered without the pruned Gaussians.",
+        "- `stealth-ns defend` on each scene's Table 1 poisoned run (`defend/SCENE/` next to this file has "
+        "its defend.json, the figures and the pruned runs). Each defence prunes at its own rule "
+        "(docs/defences.md); V-illusory after and the V-test cost are rendered without the pruned Gaussians.",
         "- input-filter retrains the run on wavelet-filtered images: it scores no Gaussian (AUROC/AP –).",
     ]
     lines += [f"- n/a for {scene}: {err}" for scene, err in data["errors"].items()]
@@ -122,10 +123,11 @@ def defend_scenes(
     runs: dict[str, dict[str, Any]],
     pairs: dict[str, tuple[str, str]],
     run_ids: dict[str, str],
+    output: Path,
 ) -> dict[str, Any]:
-    """Run (or reuse) ``stealth-ns defend`` for every scene; ``pairs`` maps a scene to the keys of its
-    Table 1 poisoned run and clean run in ``runs`` (results.json's run entries), ``run_ids`` gives the
-    finished runs' ids (their markers). Returns Table D's numbers."""
+    """Run (or reuse) ``stealth-ns defend`` for every scene into ``output/defend/SCENE``; ``pairs`` maps a
+    scene to the keys of its Table 1 poisoned run and clean run in ``runs`` (results.json's run entries),
+    ``run_ids`` gives the finished runs' ids (their markers). Returns Table D's numbers."""
     defended: dict[str, dict[str, Any] | None] = {}
     errors: dict[str, str] = {}
     cfg = DefendConfig()
@@ -135,14 +137,15 @@ def defend_scenes(
         if poisoned_key not in run_ids or clean_key not in run_ids:
             defended[scene], errors[scene] = None, "its Table 1 runs did not finish"
             continue
-        print(f"Table D: stealth-ns defend on {scene} ({poisoned['run_dir']})", flush=True)
+        out = Path(output) / DEFEND_DIR / scene
+        print(f"Table D: stealth-ns defend on {scene} ({poisoned['run_dir']}) into {out}", flush=True)
         try:
             result, reused = cached_defend(
-                Path(poisoned["config"]), Path(clean["config"]), run_ids[poisoned_key], cfg
+                Path(poisoned["config"]), Path(clean["config"]), run_ids[poisoned_key], cfg, out
             )
         except Exception as err:  # one failed defence run must not stop the table
             defended[scene], errors[scene] = None, f"defend failed: {type(err).__name__}: {err}"
-            log = Path(poisoned["run_dir"]) / DEFEND_DIR / DEFEND_LOG
+            log = out / DEFEND_LOG
             print(f"Table D: {scene}: {errors[scene]} (see {log})", file=sys.stderr, flush=True)
             continue
         defended[scene] = result

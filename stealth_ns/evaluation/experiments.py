@@ -466,7 +466,7 @@ class Plan:
         if self.defend:
             lines.append(
                 "  Table D: stealth-ns defend on each scene's Table 1 poisoned run after training "
-                "(into RUN/defend/; its input-filter defence retrains that run once)"
+                "(into OUTPUT/defend/SCENE; its input-filter defence retrains that run once)"
             )
         for scene in self.scenes:
             lines += self._scene_lines(scene)
@@ -1214,7 +1214,7 @@ def add_defence_table(plan: Plan, results: dict[str, Any]) -> dict[str, Any]:
         record = finished_record(plan.get(key).spec)
         if record is not None:
             run_ids[key] = record.run_id
-    results["table_d"] = json_safe(defend_scenes(scenes, results["runs"], pairs, run_ids))
+    results["table_d"] = json_safe(defend_scenes(scenes, results["runs"], pairs, run_ids, plan.output))
     write_json_atomic(plan.output / "results.json", results)
     tmp = plan.output / ".tables.md.tmp"
     tmp.write_text(render_markdown(results))
