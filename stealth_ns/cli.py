@@ -264,10 +264,9 @@ class Defend:
     def main(self) -> None:
         from stealth_ns.evaluation.defend import run_defend
 
-        result = run_defend(self.run, self.output, self.options, self.clean)
+        run_defend(self.run, self.output, self.options, self.clean)
         print(f"\nwrote {self.output / 'defend.json'}, {self.output / 'defend.md'} and the figures")
         print((self.output / "defend.md").read_text())
-        del result
 
 
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a

@@ -69,12 +69,19 @@ def detection_metrics(scores: np.ndarray, is_poison: np.ndarray) -> dict[str, An
     if n_poison == 0 or n_clean == 0:
         out["reason"] = f"AUROC and AP need both classes; got {n_poison} poison and {n_clean} clean Gaussians"
         return out
-    ranks = rankdata(s, method="dense")
-    preds = torch.from_numpy(ranks / ranks.max())
+    preds = torch.from_numpy(rank_scores(s))
     target = torch.from_numpy(y.astype(np.int64))
     out["auroc"] = float(binary_auroc(preds, target))
     out["average_precision"] = float(binary_average_precision(preds, target))
     return out
+
+
+def rank_scores(scores: np.ndarray) -> np.ndarray:
+    """``(N,)`` float64 dense ranks of ``scores`` scaled into (0, 1] (NaN as ``+inf``): the same order and
+    ties, in the range torchmetrics takes as probabilities (it squashes anything else through a sigmoid,
+    which in float32 merges large scores)."""
+    ranks = rankdata(nan_as_suspicious(scores), method="dense")
+    return ranks / ranks.max()
 
 
 def prune_mask_top_fraction(scores: np.ndarray, fraction: float) -> np.ndarray:

@@ -19,6 +19,7 @@ from typing import Any
 
 from stealth_ns.defences.config import DEFENCES, DefendConfig
 from stealth_ns.evaluation.defend_outputs import fmt, pct
+from stealth_ns.json_io import write_json_atomic
 
 TABLE_KEY = "D"
 TITLE = "Table D: stealth under defences"
@@ -56,7 +57,7 @@ def cached_defend(
             traceback.print_exc(file=log)
             raise
     result["bench_stamp"] = stamp
-    (out / "defend.json").write_text(json.dumps(result, indent=2))
+    write_json_atomic(out / "defend.json", result)
     return result, False
 
 

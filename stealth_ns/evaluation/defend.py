@@ -67,15 +67,11 @@ class Target:
 
 def load_target(config_path: Path) -> Target:
     """Load an attacked run: its pipeline, attack record, final checkpoint and final learning rates."""
-    from stealth_ns.safe_config import load_config
-
     run = load_run(Path(config_path))
     if not isinstance(run.model, StealthSplatModel):
         raise StealthNSError(f"{config_path} is not a stealth-splat run (no poison tag to score against)")
     record = attack_record(run, Path(config_path))
-    checkpoints = sorted((run.config_path.parent / "nerfstudio_models").glob("step-*.ckpt"))
-    rates = final_learning_rates(load_config(run.config_path).optimizers)
-    return Target(run, record, checkpoints[-1], rates)
+    return Target(run, record, run.checkpoint, final_learning_rates(run.config.optimizers))
 
 
 def defender_images(target: Target) -> list[torch.Tensor]:

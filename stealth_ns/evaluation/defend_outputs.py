@@ -100,17 +100,14 @@ def _plot_roc(path: Path, scored: dict[str, Scored], is_poison: np.ndarray) -> N
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from scipy.stats import rankdata
     from torchmetrics.functional.classification import binary_roc
 
-    from stealth_ns.defences.scores import nan_as_suspicious
+    from stealth_ns.defences.detection import rank_scores
 
     fig, ax = plt.subplots(figsize=(4.6, 4.2))
     target = torch.from_numpy(is_poison.astype(np.int64))
     for name, s in scored.items():
-        # ranks in (0, 1]: torchmetrics squashes scores outside [0, 1] (see detection_metrics)
-        ranks = rankdata(nan_as_suspicious(s.scores), method="dense")
-        fpr, tpr, _ = binary_roc(torch.from_numpy(ranks / ranks.max()), target, thresholds=None)
+        fpr, tpr, _ = binary_roc(torch.from_numpy(rank_scores(s.scores)), target, thresholds=None)
         ax.plot(fpr.numpy(), tpr.numpy(), lw=1.5, label=name)
     ax.plot([0, 1], [0, 1], color="0.6", lw=0.8, ls="--")
     save_plot(
@@ -196,8 +193,9 @@ def write_outputs(output: Path, result: dict[str, Any], target: Target, scored: 
 
     output.mkdir(parents=True, exist_ok=True)
     figures = {}
-    if scored and 0 < int(poison_tags(target.model).sum()) < target.model.num_points:
-        _plot_roc(output / FIGURES["roc"], scored, poison_tags(target.model))
+    is_poison = poison_tags(target.model)
+    if scored and 0 < int(is_poison.sum()) < is_poison.shape[0]:
+        _plot_roc(output / FIGURES["roc"], scored, is_poison)
         figures["roc"] = FIGURES["roc"]
     _plot_curves(output / FIGURES["curves"], result)
     figures["curves"] = FIGURES["curves"]

@@ -929,12 +929,17 @@ def _write_outputs(
 ) -> dict[str, Any]:
     """Write results.json and tables.md (each replaced whole); returns the results document."""
     results = json_safe(build_results(plan, runs, environment(plan, started, executor), complete))
-    plan.output.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(plan.output / "results.json", results)
-    tmp = plan.output / ".tables.md.tmp"
-    tmp.write_text(render_markdown(results))
-    tmp.replace(plan.output / "tables.md")
+    write_results(plan.output, results)
     return results
+
+
+def write_results(output: Path, results: dict[str, Any]) -> None:
+    """``output/results.json`` and ``output/tables.md`` of ``results``, each replaced whole."""
+    output.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(output / "results.json", results)
+    tmp = output / ".tables.md.tmp"
+    tmp.write_text(render_markdown(results))
+    tmp.replace(output / "tables.md")
 
 
 class _Bench:
@@ -1215,10 +1220,7 @@ def add_defence_table(plan: Plan, results: dict[str, Any]) -> dict[str, Any]:
         if record is not None:
             run_ids[key] = record.run_id
     results["table_d"] = json_safe(defend_scenes(scenes, results["runs"], pairs, run_ids, plan.output))
-    write_json_atomic(plan.output / "results.json", results)
-    tmp = plan.output / ".tables.md.tmp"
-    tmp.write_text(render_markdown(results))
-    tmp.replace(plan.output / "tables.md")
+    write_results(plan.output, results)
     return results
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -86,8 +87,6 @@ def retrain(target: Target, cfg: DefendConfig, output: Path) -> tuple[Path, bool
 
 def run_input_filter(target: Target, cfg: DefendConfig, output: Path, baseline: dict) -> dict[str, Any]:
     """defend.json's ``input-filter`` entry: the retrained model's V-illusory and V-test cost."""
-    import time
-
     from stealth_ns.evaluation.defend import Evaluator, cut_metrics
     from stealth_ns.evaluation.report import load_run
 

@@ -64,6 +64,8 @@ class LoadedRun:
     config_path: Path
     pipeline: Any  # a nerfstudio Pipeline (a StealthPipeline for the poisoned run)
     step: int
+    config: Any = None  # the run's TrainerConfig, as loaded
+    checkpoint: Path | None = None  # the checkpoint nerfstudio loaded (the latest)
 
     @property
     def model(self) -> Any:
@@ -122,10 +124,12 @@ def load_run(config_path: Path) -> LoadedRun:
         return config
 
     try:
-        _, pipeline, _, step = safe_eval_setup(config_path, test_mode="test", update_config_callback=relocate)
+        config, pipeline, checkpoint, step = safe_eval_setup(
+            config_path, test_mode="test", update_config_callback=relocate
+        )
     except StealthNSExit as err:  # the pipeline's own one-line errors, as raised
         raise err.error from None
-    return LoadedRun(config_path, pipeline, step)
+    return LoadedRun(config_path, pipeline, step, config, Path(checkpoint))
 
 
 def attack_record(run: LoadedRun, given: Path) -> AttackRecord:
