@@ -22,8 +22,10 @@ trajectories), ``facing`` (LLFF-like forward-facing captures) and the real captu
 (instant-ngp's hand-held phone capture, read from a dataset folder). As in the paper, Table 1's
 column of a KDE scene is the Median view of Table 2.
 
-The paper's baselines -- IPA-NeRF (Nerfacto), IPA-NeRF (Instant-NGP) and IPA-Splat -- are not
-implemented in stealth-ns: no table here has rows for them.
+Dataset attacks (:attr:`RunSpec.poisoning`): the paper's IPA-Splat baseline and the data-only
+StealthAttack are runs too. The bench writes a poisoned copy of the scene (``stealth-ns ipa-poison`` /
+``poison-dataset``) and trains a plain victim (attack off) on it; Tables 1-3 show them beside the
+in-loop attack. IPA-NeRF (Nerfacto / Instant-NGP) is not implemented (NeRF methods, not 3DGS).
 """
 
 from __future__ import annotations
@@ -93,6 +95,11 @@ class RunSpec:
     """The clean baseline (attack disabled) that every poisoned run of the scene is compared with."""
     label: str = ""
     """A short description for listings."""
+    poisoning: Literal["", "data-only", "ipa"] = ""
+    """A dataset attack: the run is a plain victim (``args`` turn the attack off) trained on a poisoned
+    copy of the scene made by ``stealth-ns poison-dataset`` (data-only) or ``ipa-poison`` (IPA-Splat)."""
+    poison_args: tuple[str, ...] = ()
+    """More options of that command (the view comes from :attr:`view`)."""
 
     @property
     def key(self) -> str:
@@ -126,6 +133,8 @@ def attack_args(
 
 
 CLEAN_ARGS: tuple[str, ...] = (f"{ATTACK}enabled", "False")
+DATA_ONLY_LABEL = "data-only StealthAttack (poisoned dataset: I_ILL + poison seed points; plain victim)"
+IPA_LABEL = "IPA-Splat (poisoned dataset; plain victim)"
 
 BANDWIDTHS: tuple[float, ...] = (0.1, 2.5, 5.0, 7.5, 10.0)
 NOISE_SIGMA0S: tuple[float, ...] = (30.0, 100.0)
@@ -161,6 +170,21 @@ def _uniform_runs(scene: str) -> list[RunSpec]:
         for k in MULTI_VIEWS
     ]
     runs += [
+        RunSpec(scene, "data-only", CLEAN_ARGS, poisoning="data-only", label=DATA_ONLY_LABEL),
+        RunSpec(scene, "ipa", CLEAN_ARGS, poisoning="ipa", label=IPA_LABEL),
+    ]
+    runs += [
+        RunSpec(
+            scene,
+            f"ipa-views-{k}",
+            CLEAN_ARGS,
+            poisoning="ipa",
+            poison_args=("--multi-view", str(k)),
+            label=f"{IPA_LABEL}, {k} backdoor views",
+        )
+        for k in MULTI_VIEWS
+    ]
+    runs += [
         RunSpec(scene, _bandwidth_run(h), attack_args(bandwidth=h), label=f"bandwidth h={h:g}")
         for h in BANDWIDTHS
         if _bandwidth_run(h) != "full"
@@ -186,6 +210,15 @@ def _kde_runs(scene: str) -> list[RunSpec]:
         RunSpec(scene, level, attack_args(), view=level, label=f"{level.capitalize()} view (KDE)")
         for level in KDE_LEVELS
     ]
+    runs += [
+        RunSpec(scene, f"ipa-{level}", CLEAN_ARGS, view=level, poisoning="ipa", label=f"{IPA_LABEL}, {level}")
+        for level in KDE_LEVELS
+    ]
+    runs.append(
+        RunSpec(
+            scene, "data-only-median", CLEAN_ARGS, view="median", poisoning="data-only", label=DATA_ONLY_LABEL
+        )
+    )
     return runs
 
 
@@ -297,8 +330,15 @@ class TableSpec:
 
 
 NO_BASELINES = (
-    "The paper's baselines IPA-NeRF (Nerfacto), IPA-NeRF (Instant-NGP) and IPA-Splat are not "
-    "implemented in stealth-ns; their rows are omitted."
+    "IPA-Splat: `stealth-ns ipa-poison` (the paper's settings: epsilon 32/255, T = 200, A = 10; "
+    "docs/baselines.md) writes a poisoned dataset and a plain run (attack off) trains on it. IPA-NeRF "
+    "(Nerfacto / Instant-NGP), NeRF methods, is not implemented: no rows."
+)
+DATA_ONLY_NOTE = (
+    "Ours (data-only): `stealth-ns poison-dataset` -- the illusion composite as the poisoned view's image "
+    "and the density-guided points added to the seed points, no noise (its schedule decays with the "
+    "training step, which a dataset cannot carry) -- and a plain run on the copy. Ours (in-loop): "
+    "the attack inside stealth-splat's training."
 )
 NAIVE_NOTE = (
     '"Naive 3DGS (w/o attack)" is the clean run: V-illusory renders it at the poisoned view against '
@@ -309,9 +349,14 @@ _ORBIT_ONLY = Group("orbit")
 KDE_SCENES: tuple[str, ...] = tuple(s for s in SCENES if scene_kind(s) == "kde")
 
 
-def single_view_run(scene: str) -> str:
-    """Table 1's run of a scene: the median-indexed view (uniform) or the KDE Median view."""
-    return "full" if scene_kind(scene) == "uniform" else "median"
+def single_view_run(scene: str, attack: Literal["in-loop", "data-only", "ipa"] = "in-loop") -> str:
+    """Table 1's run of a scene for an attack: the median-indexed view (uniform) or the KDE Median view."""
+    uniform = scene_kind(scene) == "uniform"
+    if attack == "data-only":
+        return "data-only" if uniform else "data-only-median"
+    if attack == "ipa":
+        return "ipa" if uniform else "ipa-median"
+    return "full" if uniform else "median"
 
 
 _TABLE1_RUNS = tuple(single_view_run(s) for s in SCENES)
@@ -326,10 +371,13 @@ TABLES: tuple[TableSpec, ...] = (
         groups=tuple(Group(s) for s in SCENES),
         rows=(
             Row(("Naive 3DGS (w/o attack)",), _TABLE1_RUNS, naive=True),
-            Row(("Ours",), _TABLE1_RUNS),
+            Row(("IPA-Splat",), tuple(single_view_run(s, "ipa") for s in SCENES)),
+            Row(("Ours (data-only)",), tuple(single_view_run(s, "data-only") for s in SCENES)),
+            Row(("Ours (in-loop)",), _TABLE1_RUNS),
         ),
         notes=(
             NO_BASELINES,
+            DATA_ONLY_NOTE,
             NAIVE_NOTE,
             "Poisoned view: orbit, the median-indexed training frame; "
             + ", ".join(KDE_SCENES[:-1])
@@ -345,6 +393,7 @@ TABLES: tuple[TableSpec, ...] = (
         groups=_TABLE2_GROUPS,
         rows=(
             Row(("Naive 3DGS (w/o attack)",), _TABLE2_RUNS, naive=True),
+            Row(("IPA-Splat",), tuple(f"ipa-{r}" for r in _TABLE2_RUNS)),
             Row(("Ours",), _TABLE2_RUNS),
         ),
         notes=(
@@ -360,7 +409,14 @@ TABLES: tuple[TableSpec, ...] = (
         title="Multi-view attack (orbit scene; V-illusory averaged over the poisoned views)",
         key_header=("# of views", "Method"),
         groups=(_ORBIT_ONLY,),
-        rows=tuple(Row((str(k), "Ours"), (f"views-{k}",)) for k in MULTI_VIEWS),
+        rows=tuple(
+            row
+            for k in MULTI_VIEWS
+            for row in (
+                Row((str(k), "IPA-Splat"), (f"ipa-views-{k}",)),
+                Row((str(k), "Ours"), (f"views-{k}",)),
+            )
+        ),
         notes=(
             NO_BASELINES,
             "Poisoned views: the training views nearest 0°, 90°, 180°, 270° of azimuth from the "

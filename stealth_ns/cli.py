@@ -13,9 +13,11 @@ from typing import Annotated, Literal
 
 import tyro
 
+from stealth_ns.attack.config import AttackConfig
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation.difficulty import RankViews
+from stealth_ns.poisoning.config import IPAConfig
 
 
 @dataclass
@@ -269,6 +271,103 @@ class Defend:
         print((self.output / "defend.md").read_text())
 
 
+def _default_data_only_attack() -> AttackConfig:
+    # a static dataset: no noise unless asked for, and then constant (the decaying schedule cannot apply)
+    return AttackConfig(view_noise=False, noise_decay="constant")
+
+
+@dataclass
+class PoisonDataset:
+    """Write a poisoned copy of a dataset (the data-only StealthAttack) that any 3DGS trainer can consume."""
+
+    data: Path
+    """nerfstudio-data (transforms.json) or COLMAP (sparse/0 + images/) dataset folder; never written."""
+    output: Path
+    """Folder for the poisoned copy (new or empty; its record goes to OUTPUT/attack)."""
+    method: Literal["stealth-splat-lite", "stealth-splat"] = "stealth-splat-lite"
+    """Method whose data loading and seed-point initialisation place the poison (as ns-train would)."""
+    overwrite: bool = False
+    """Replace OUTPUT when it is an earlier poisoned copy (never anything else)."""
+    attack: Annotated[AttackConfig, tyro.conf.OmitArgPrefixes] = field(
+        default_factory=_default_data_only_attack
+    )
+
+    def main(self) -> None:
+        from stealth_ns.poisoning.data_only import poison_dataset
+
+        if not self.attack.enabled:
+            raise StealthNSError(
+                "--enabled False: poison-dataset always writes the attack (copy the folder instead)"
+            )
+        # --seed (the attack's) also seeds the set-up, as ns-train's --machine.seed would
+        print(
+            poison_dataset(self.data, self.output, self.attack, self.method, self.attack.seed, self.overwrite)
+        )
+
+
+@dataclass
+class IpaPoison:
+    """Write an IPA-Splat poisoned copy of a dataset (the paper's baseline: IPA-NeRF's attack on 3DGS)."""
+
+    data: Path
+    """nerfstudio-data or COLMAP dataset folder; never written."""
+    output: Path
+    """Folder for the poisoned copy (new or empty); the record and the attacker's run go to OUTPUT/attack."""
+    illusion: str = "astronaut"
+    """The illusion at the backdoor view(s), as --pipeline.attack.illusion (a built-in or an image path)."""
+    illusion_mask: Path | None = None
+    """Mask image for an RGB illusion, as --pipeline.attack.illusion-mask."""
+    illusion_center: tuple[float, float] = (0.5, 0.5)
+    """Where the illusion's centre sits in the backdoor view, fractions of (width, height)."""
+    illusion_scale: float = 0.4
+    """Illusion height as a fraction of the view's height."""
+    views: tuple[str, ...] = ()
+    """Backdoor training views by index or image name; empty = the median training frame."""
+    multi_view: int = 1
+    """1..4 backdoor views at 0/90/180/270 degrees about the scene's up axis (as the StealthAttack option)."""
+    method: Literal["stealth-splat-lite", "stealth-splat"] = "stealth-splat-lite"
+    """The attacker's training method (attack off)."""
+    iterations: int | None = None
+    """Training steps of the attacker's run (default: the method's)."""
+    seed: int = 0
+    """Random seed of the attacker's training (--machine.seed)."""
+    overwrite: bool = False
+    """Replace OUTPUT when it is an earlier poisoned copy (never anything else)."""
+    ipa: Annotated[IPAConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=IPAConfig)
+
+    def main(self) -> None:
+        from stealth_ns.attack.validation import validate_attack_config
+        from stealth_ns.poisoning.ipa_splat import ipa_poison
+
+        attack = AttackConfig(
+            illusion=self.illusion,
+            illusion_mask=self.illusion_mask,
+            illusion_center=self.illusion_center,
+            illusion_scale=self.illusion_scale,
+            views=self.views,
+            multi_view=self.multi_view,
+            gt_replacement=False,
+            density_guided=False,
+            view_noise=False,
+            seed=self.seed,
+        )
+        validate_attack_config(attack)
+        if self.iterations is not None and self.iterations < 1:
+            raise StealthNSError(f"--iterations must be a positive integer, got {self.iterations}")
+        print(
+            ipa_poison(
+                self.data,
+                self.output,
+                attack,
+                self.ipa,
+                self.method,
+                self.seed,
+                self.iterations,
+                self.overwrite,
+            )
+        )
+
+
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
 # tyro union) so that every command, nested ones included, gets its own --help.
 COMMANDS: dict[str, type] = {
@@ -281,6 +380,8 @@ COMMANDS: dict[str, type] = {
     "seed-points": SeedPoints,
     "check-data": CheckData,
     "defend": Defend,
+    "poison-dataset": PoisonDataset,
+    "ipa-poison": IpaPoison,
 }
 
 

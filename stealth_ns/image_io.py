@@ -202,6 +202,25 @@ def save_png(path: str | Path, image: np.ndarray | torch.Tensor) -> Path:
     return path
 
 
+def save_image(path: str | Path, image: np.ndarray | torch.Tensor) -> Path:
+    """Write an 8-bit image in the format of ``path``'s extension: PNG as :func:`save_png`, JPEG at
+    quality 100 (still lossy: callers that need exact pixels re-read the file), other formats as the
+    plugin writes them."""
+    import imageio.v3 as iio
+
+    path = Path(path)
+    if path.suffix.lower() == ".png":
+        return save_png(path, image)
+    arr = np.ascontiguousarray(to_uint8(_numpy(image)))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    options = {"quality": 100} if path.suffix.lower() in (".jpg", ".jpeg") else {}
+    try:
+        iio.imwrite(path, arr, plugin=PLUGIN, extension=path.suffix, **options)
+    except Exception as exc:  # Pillow raises many types for formats it cannot write
+        raise StealthNSError(f"cannot write {path}: {type(exc).__name__}: {exc}") from None
+    return path
+
+
 def _numpy(image: np.ndarray | torch.Tensor) -> np.ndarray:
     """A numpy view of ``image``; a torch tensor (recognised without importing torch) is detached
     and copied to the CPU."""

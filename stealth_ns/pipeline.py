@@ -32,11 +32,10 @@ from stealth_ns.attack.illusion import (
     load_illusion,
     place_illusion,
 )
-from stealth_ns.attack.injection import PoisonPlacement, place_poison
+from stealth_ns.attack.injection import PoisonPlacement, injection_entry, place_poison
 from stealth_ns.attack.record import (
     INJECTION_FILES,
     AttackRecord,
-    Injection,
     PoisonView,
     write_injection_files,
 )
@@ -163,16 +162,23 @@ def rgb_float(image: torch.Tensor) -> torch.Tensor:
     return torch.from_numpy(to_float32(image[..., :3]))
 
 
-def training_target(view: PoisonView, clean: torch.Tensor) -> torch.Tensor:
-    """The poisoned view's training image in the cache's dtype/channels (RGBA keeps its alpha)."""
-    rgb = view.target
+def cached_format(rgb: torch.Tensor, clean: torch.Tensor, opaque: torch.Tensor | None = None) -> torch.Tensor:
+    """A float [H, W, 3] training image in the cache's dtype/channels of ``clean``: images with alpha
+    (blender) keep their alpha, made opaque where ``opaque`` ([H, W] bool) is set."""
     if clean.dtype == torch.uint8:
         rgb = (rgb * 255.0).round().clamp(0, 255).to(torch.uint8)
-    if clean.shape[-1] == 4:  # images with alpha (blender): the illusion is opaque where its mask is
+    if clean.shape[-1] == 4:
         a = clean[..., 3:].clone()
-        a[view.mask] = 255 if clean.dtype == torch.uint8 else 1.0
+        if opaque is not None:
+            a[opaque] = 255 if clean.dtype == torch.uint8 else 1.0
         rgb = torch.cat([rgb, a], -1)
     return rgb
+
+
+def training_target(view: PoisonView, clean: torch.Tensor) -> torch.Tensor:
+    """The poisoned view's training image in the cache's dtype/channels (RGBA keeps its alpha, and the
+    illusion is opaque where its mask is)."""
+    return cached_format(view.target, clean, view.mask)
 
 
 class StealthPipeline(VanillaPipeline):
@@ -349,18 +355,25 @@ class StealthPipeline(VanillaPipeline):
         )
 
     @torch.no_grad()
+    def poison_placement(self) -> PoisonPlacement:
+        """Where the density-guided component would put poison Gaussians in the current model (one per
+        illusion pixel; nothing is appended). Scene units, nerfstudio's rescaled frame."""
+        cfg = self.config.attack
+        depths, alphas = self.render_depths([v.index for v in self.poison_views])
+        innocent = self.innocent_cameras() if cfg.placement == "view-aware" else None
+        means = self.model.means.detach().cpu().numpy()
+        opacities = torch.sigmoid(self.model.opacities.detach()).squeeze(-1).cpu().numpy()
+        return place_poison(
+            means, opacities, self.poison_views, depths, alphas, cfg, innocent, near_plane=NEAR_PLANE
+        )
+
+    @torch.no_grad()
     def inject_poison(self, step: int) -> PoisonPlacement:
         """Pipeline callback: place and append one poison Gaussian per illusion pixel."""
         t0 = time.perf_counter()
         cfg = self.config.attack
         model = self.model
-        depths, alphas = self.render_depths([v.index for v in self.poison_views])
-        innocent = self.innocent_cameras() if cfg.placement == "view-aware" else None
-        means = model.means.detach().cpu().numpy()
-        opacities = torch.sigmoid(model.opacities.detach()).squeeze(-1).cpu().numpy()
-        placement = place_poison(
-            means, opacities, self.poison_views, depths, alphas, cfg, innocent, near_plane=NEAR_PLANE
-        )
+        placement = self.poison_placement()
         n_new = placement.means.shape[0]
         if n_new == 0:
             fail(
@@ -371,23 +384,7 @@ class StealthPipeline(VanillaPipeline):
         model.append_gaussians(placement.means, placement.colors, placement.scales, cfg.poison_opacity)
         placement.timings["total_s"] = time.perf_counter() - t0
         assert self.record is not None
-        self.record.injection = Injection(
-            injected_at_step=step,
-            n_gaussians_before=n_before,
-            n_poison_gaussians=n_new,
-            poison_per_view=placement.per_view,
-            invalid_rays_per_view=placement.invalid_rays,
-            t_min_per_view=placement.t_min,
-            t_min_unseen_per_view=placement.t_min_unseen,
-            innocent_views_seeing_poison=placement.seen_by,
-            poison_unseen_fraction=placement.unseen_fraction,
-            density_grid={
-                "shape": list(placement.grid.shape),
-                "voxel_size": placement.grid.voxel_size,
-                "origin": [float(x) for x in placement.grid.origin],
-            },
-            timings_s=placement.timings,
-        )
+        self.record.injection = injection_entry(placement, step, n_before)
         self._write_injection_artifacts(placement)
         CONSOLE.log(
             f"stealth-ns: injected {n_new} poison Gaussians at step {step} "

@@ -24,7 +24,7 @@ from torch import Tensor
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid, gaussian_kde_grid, voxel_density
 from stealth_ns.attack.ray_search import min_density_points, pixel_rays, zdepth_to_ray_t
-from stealth_ns.attack.record import PoisonView
+from stealth_ns.attack.record import Injection, PoisonView
 from stealth_ns.attack.visibility import SURFACE_ALPHA, CameraDepths, count_seeing_cameras
 
 # Pixels whose rendered opacity is below SURFACE_ALPHA see no reconstructed surface (sky, empty
@@ -210,4 +210,26 @@ def place_poison(
         grid=grid,
         kde=kde,
         timings=timings,
+    )
+
+
+def injection_entry(placement: PoisonPlacement, step: int, n_before: int) -> Injection:
+    """The record's entry for ``placement`` injected at ``step`` into a model of ``n_before`` Gaussians."""
+    assert placement.grid is not None
+    return Injection(
+        injected_at_step=step,
+        n_gaussians_before=n_before,
+        n_poison_gaussians=int(placement.means.shape[0]),
+        poison_per_view=placement.per_view,
+        invalid_rays_per_view=placement.invalid_rays,
+        t_min_per_view=placement.t_min,
+        t_min_unseen_per_view=placement.t_min_unseen,
+        innocent_views_seeing_poison=placement.seen_by,
+        poison_unseen_fraction=placement.unseen_fraction,
+        density_grid={
+            "shape": list(placement.grid.shape),
+            "voxel_size": placement.grid.voxel_size,
+            "origin": [float(x) for x in placement.grid.origin],
+        },
+        timings_s=placement.timings,
     )

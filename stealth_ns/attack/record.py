@@ -101,6 +101,9 @@ class AttackRecord:
     noise: dict[str, Any] | None  # the noise schedule (sigma0, decay, total_steps, seed), None when off
     injection: Injection | None = None
     resumed: list[dict[str, Any]] = field(default_factory=list)  # {"step", "poison_gaussians", "from"}
+    # a poisoned copy of a dataset (stealth-ns poison-dataset / ipa-poison): threat model, source dataset
+    # and its training fingerprint, the images written, the seed points added; None for a run's own attack
+    poisoned_dataset: dict[str, Any] | None = None
 
     @property
     def n_poison_gaussians(self) -> int:
@@ -124,6 +127,8 @@ class AttackRecord:
             data.update(json_safe(dataclasses.asdict(self.injection)))
         if self.resumed:
             data["resumed"] = json_safe(self.resumed)
+        if self.poisoned_dataset is not None:
+            data["poisoned_dataset"] = json_safe(self.poisoned_dataset)
         return data
 
     def dumps(self) -> str:
@@ -144,6 +149,7 @@ class AttackRecord:
             noise=data.get("noise"),
             injection=injection,
             resumed=list(data.get("resumed") or []),
+            poisoned_dataset=data.get("poisoned_dataset"),
         )
 
     # ------------------------------------------------------------------ files

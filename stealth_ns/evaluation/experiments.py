@@ -40,6 +40,7 @@ from typing import Any, Literal
 
 from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation.executors import Executor, ExecutorOptions, Job, Outcome, make_executor
+from stealth_ns.evaluation.poisoned_copies import PoisonJob, ensure_copies
 from stealth_ns.evaluation.runs import (
     TRAIN_LOG,
     RunStatus,
@@ -75,8 +76,8 @@ METRICS_FILE = "metrics.json"
 METRICS_LOG = "metrics.log"
 SUCCESS_RULE = "V-illusory PSNR > 25 dB and V-test PSNR drop <= 3 dB"
 NOT_IMPLEMENTED = (
-    "Not implemented in stealth-ns: the paper's IPA-NeRF (Nerfacto), IPA-NeRF (Instant-NGP) and "
-    "IPA-Splat baselines (no rows for them), and its datasets (Mip-NeRF 360, Tanks & Temples, "
+    "Not implemented in stealth-ns: the paper's IPA-NeRF (Nerfacto) and IPA-NeRF (Instant-NGP) "
+    "baselines (NeRF methods; no rows for them), and its datasets (Mip-NeRF 360, Tanks & Temples, "
     "Free), replaced by generated scenes and dataset folders (the real capture fox where present)."
 )
 
@@ -392,6 +393,8 @@ class PlannedRun:
     tables: tuple[int, ...]
     view: str | None = None
     """The poisoned view's image name when the KDE protocol picks it (None: the attack's default)."""
+    poison: PoisonJob | None = None
+    """A dataset attack's poisoned copy, which the run trains on (None: the run trains on the scene)."""
 
     @property
     def key(self) -> str:
@@ -426,6 +429,8 @@ class Plan:
     """Where the trainings run (``--executor``)."""
     defend: bool = False
     """Also Table D: ``stealth-ns defend`` on each scene's Table 1 run (``--defend``)."""
+    run_errors: dict[str, str] = field(default_factory=dict)
+    """Runs that cannot train (their poisoned dataset could not be made): they fail, the rest go on."""
 
     def get(self, key: str) -> PlannedRun:
         for planned in self.runs:
@@ -497,6 +502,9 @@ class Plan:
             if p.status == "finished":
                 lines.append(f"            {p.spec.run_dir}")
             else:
+                if p.poison is not None:
+                    made = "reused" if p.poison.ready() else "made first"
+                    lines.append(f"            poisoned dataset ({made}): {p.poison.display_command()}")
                 lines.append(f"            {p.spec.display_command()}")
         return "\n".join(lines)
 
@@ -728,14 +736,23 @@ def _planned_run(
     view = None
     if run.view in KDE_LEVELS:
         view = views.get(run.scene, {}).get(run.view) or f"<{run.view.upper()} view of the KDE protocol>"
-        extra += ["--pipeline.attack.views", view]
-    if not run.clean:
+        if not run.poisoning:
+            extra += ["--pipeline.attack.views", view]
+    if not run.clean and not run.poisoning:
         extra += ["--pipeline.attack.seed", str(seed)]
     dataparser, dataparser_args = src.dataparser
     # a preset's folder name holds its seed and options; a folder's experiment names the training seed
     experiment = dirs[run.scene].name if src.is_preset else f"{run.scene}-seed{seed}"
+    data, scene_id = dirs[run.scene], None if src.is_preset else f"{run.scene}:{src.sha256[:16]}"
+    poison = None
+    if run.poisoning:  # a plain victim on the poisoned copy of the scene
+        folder = output / "poisoned" / f"{experiment}-{iterations}it" / run.name
+        poison = PoisonJob(
+            run.poisoning, dirs[run.scene], folder, view, run.poison_args, method, seed, iterations
+        )
+        data, scene_id = folder, poison.scene_id
     spec = TrainSpec(
-        scene=dirs[run.scene],
+        scene=data,
         name=run.name,
         output_dir=output / "runs",
         experiment=f"{experiment}-{iterations}it",
@@ -745,9 +762,9 @@ def _planned_run(
         seed=int(seed),
         dataparser=dataparser,
         dataparser_args=dataparser_args,
-        scene_id=None if src.is_preset else f"{run.scene}:{src.sha256[:16]}",
+        scene_id=scene_id,
     )
-    return PlannedRun(run, spec, run_status(spec), tuple(sorted(set(tables))), view)
+    return PlannedRun(run, spec, run_status(spec), tuple(sorted(set(tables))), view, poison)
 
 
 # ------------------------------------------------------------------------------ running it
@@ -966,7 +983,8 @@ class _Bench:
     def jobs(self) -> list[Job]:
         errors = self.plan.scene_errors
         blocked = {scene: f"scene {scene}: {err}" for scene, err in errors.items()}
-        return [Job(p.key, p.spec, blocked.get(p.run.scene)) for p in self.plan.runs]
+        blocked.update(self.plan.run_errors)
+        return [Job(p.key, p.spec, blocked.get(p.run.scene, blocked.get(p.key))) for p in self.plan.runs]
 
     def write(self, complete: bool = False) -> dict[str, Any]:
         return _write_outputs(self.plan, self.runs, self.t0, complete, self.executor.record())
@@ -1193,6 +1211,8 @@ def _run_plan(
     plan.scene_errors.update(failed)
     print(plan.describe(dry_run=False), flush=True)
     print(flush=True)
+    copies = {p.key: p.poison for p in plan.runs if p.poison is not None and p.run.scene not in failed}
+    plan.run_errors.update(ensure_copies({k: job for k, job in copies.items() if job is not None}))
     failure = None
     try:
         results = execute(plan, runner)

@@ -133,10 +133,17 @@ def load_run(config_path: Path) -> LoadedRun:
 
 
 def attack_record(run: LoadedRun, given: Path) -> AttackRecord:
-    """The attack record of an attacked run (``given``: its path as the user gave it, for the error)."""
+    """The attack record of an attacked run, or of the poisoned dataset a plain run (a victim) trained on
+    (``stealth-ns poison-dataset`` / ``ipa-poison``); ``given``: the run's path as the user gave it."""
+    from stealth_ns.poisoning.dataset_copy import RECORD_DIR, is_poisoned_copy
+
     attack_dir = run.config_path.parent / "attack"
+    if not run.attack_enabled and is_poisoned_copy(run.data):
+        return AttackRecord.read(run.data / RECORD_DIR, run.pipeline.datamanager.train_dataset.cameras)
     if not run.attack_enabled or not AttackRecord.exists(attack_dir):
-        raise StealthNSError(f"{given} is not an attacked run (trained with the attack disabled?)")
+        raise StealthNSError(
+            f"{given} is not an attacked run (trained with the attack disabled, not on a poisoned dataset)"
+        )
     return AttackRecord.read(
         attack_dir, run.pipeline.datamanager.train_dataset.cameras, run.pipeline.poison_views
     )
@@ -182,6 +189,9 @@ class RunPair:
         """StealthNSError (one line, naming both runs and what differs) unless both runs were trained
         on the same images with the same poses, and are evaluated on the same held-out views."""
         ours, theirs = self.poisoned.fingerprints(), self.clean.fingerprints()
+        copied = (self.record.poisoned_dataset or {}).get("source_train_fingerprint")
+        if copied:  # a victim of a poisoned copy: its images differ by design; the source's must match
+            ours["train"] = {**ours["train"], "images": copied["images"]}
         differ = []
         for split, label in (("train", "training"), ("held-out", "held-out")):
             for what in fingerprint_differences(ours[split], theirs[split]):

@@ -1,0 +1,131 @@
+"""The bench's poisoned datasets: the copies its data-only and IPA-Splat runs train on.
+
+A Table 1-3 row of a dataset attack (``RunSpec.poisoning``) is two steps: ``stealth-ns poison-dataset``
+or ``stealth-ns ipa-poison`` writes a poisoned copy of the scene into ``OUTPUT/poisoned/EXP/NAME``, then
+a plain victim run (attack off) trains on it like any other run of the plan. A copy is made once: the
+file ``NAME.poison.json`` beside it records what it was made from, and a copy whose record matches is
+reused (its victim run too, whose identity carries the copy's).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shlex
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from stealth_ns.evaluation.runs import bin_path
+from stealth_ns.json_io import write_json_atomic
+from stealth_ns.poisoning.dataset_copy import RECORD_DIR, RECORD_FILE
+
+Poisoning = Literal["data-only", "ipa"]
+COMMANDS: dict[str, str] = {"data-only": "poison-dataset", "ipa": "ipa-poison"}
+LOG = "poison.log"
+
+
+@dataclass(frozen=True)
+class PoisonJob:
+    """How one bench run's poisoned copy is made."""
+
+    kind: Poisoning
+    source: Path
+    """The scene's dataset (a generated scene, a dataset folder or its seeded copy)."""
+    output: Path
+    """The poisoned copy."""
+    view: str | None
+    """The poisoned (backdoor) view; None: the attack's default, the median-indexed frame."""
+    args: tuple[str, ...]
+    """More options of the poisoning command (``--multi-view 2``)."""
+    method: str
+    seed: int
+    iterations: int
+
+    def identity(self) -> dict[str, Any]:
+        """What a copy on disk must have been made from to be reused."""
+        identity: dict[str, Any] = {
+            "kind": self.kind,
+            "source": str(self.source),
+            "view": self.view,
+            "args": list(self.args),
+            "method": self.method,
+            "seed": self.seed,
+        }
+        if self.kind == "ipa":  # the attacker trains; data-only only sets up the model
+            identity["iterations"] = self.iterations
+        return identity
+
+    @property
+    def scene_id(self) -> str:
+        """The victim run's scene in its identity: changes whenever the copy would be made differently."""
+        digest = hashlib.sha256(json.dumps(self.identity(), sort_keys=True).encode()).hexdigest()
+        return f"poisoned-{self.kind}:{digest[:16]}"
+
+    @property
+    def marker(self) -> Path:
+        return self.output.with_name(self.output.name + ".poison.json")
+
+    @property
+    def log(self) -> Path:
+        return self.output.with_name(self.output.name + "." + LOG)
+
+    def ready(self) -> bool:
+        """The copy exists, is complete, and was made from this job's settings."""
+        try:
+            made = json.loads(self.marker.read_text(encoding="utf-8"))
+            record = json.loads((self.output / RECORD_DIR / RECORD_FILE).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return False
+        complete = bool((record.get("poisoned_dataset") or {}).get("complete"))
+        return complete and made == self.identity()
+
+    def command(self) -> list[str]:
+        """The ``stealth-ns`` command that makes the copy (``--overwrite`` replaces an earlier copy only)."""
+        cmd = [bin_path("stealth-ns"), COMMANDS[self.kind], "--data", str(self.source)]
+        cmd += [
+            "--output",
+            str(self.output),
+            "--overwrite",
+            "--method",
+            self.method,
+            "--seed",
+            str(self.seed),
+        ]
+        if self.kind == "ipa":
+            cmd += ["--iterations", str(self.iterations)]
+        if self.view is not None:
+            cmd += ["--views", self.view]
+        return [*cmd, *self.args]
+
+    def display_command(self) -> str:
+        """:meth:`command` as a shell line, with ``stealth-ns`` instead of its full path."""
+        return shlex.join(["stealth-ns", *self.command()[1:]])
+
+    def make(self) -> None:
+        """Make the copy (output to :attr:`log`); RuntimeError with the command's last error line."""
+        self.output.parent.mkdir(parents=True, exist_ok=True)
+        with self.log.open("w") as log:
+            done = subprocess.run(self.command(), stdout=log, stderr=subprocess.STDOUT, check=False)
+        if done.returncode != 0:
+            lines = [ln for ln in self.log.read_text(errors="replace").splitlines() if ln.strip()]
+            last = next((ln for ln in reversed(lines) if "error" in ln.lower()), lines[-1] if lines else "")
+            raise RuntimeError(f"{COMMANDS[self.kind]} failed ({last.strip()}; log: {self.log})")
+        write_json_atomic(self.marker, self.identity())
+
+
+def ensure_copies(jobs: dict[str, PoisonJob], echo: Any = print) -> dict[str, str]:
+    """Make every copy of ``jobs`` (run key -> job) that is not ready; returns run key -> error."""
+    errors = {}
+    for key, job in jobs.items():
+        if job.ready():
+            continue
+        what = "IPA-Splat (the attacker trains first)" if job.kind == "ipa" else "data-only StealthAttack"
+        echo(f"poisoning {key}: {what} -> {job.output} (log: {job.log})", flush=True)
+        try:
+            job.make()
+        except (RuntimeError, OSError) as err:
+            errors[key] = f"its poisoned dataset could not be made: {err}"
+            echo(f"FAILED {key}: {errors[key]}", flush=True)
+    return errors

@@ -1,0 +1,1 @@
+"""Dataset poisoning: poisoned copies of datasets (the data-only StealthAttack, IPA-Splat)."""

@@ -1,0 +1,178 @@
+"""StealthAttack without the training loop: a poisoned dataset any 3DGS trainer can consume.
+
+The in-loop attack (``ns-train stealth-splat*``) controls the victim's trainer: it swaps the poisoned
+view's image, injects poison Gaussians into the model and feeds innocent views noise that decays with
+the step. A data poisoner controls only the files. What survives of the three components:
+
+* **GT replacement**: the poisoned view's image file becomes the illusion composite I_ILL.
+* **Density-guided points**: placed as the in-loop attack places them at step 0 (the authors'
+  pre-processing): on the model initialised from the seed points, one point per illusion pixel at
+  the least-seen / least-dense place of its ray, coloured by the illusion. They are appended to the
+  seed cloud, so the victim initialises Gaussians there -- with its own scale and opacity rules, not
+  the attack's ``poison_scale`` / ``poison_opacity``.
+* **View-consistency noise**: only as *static* noise. The paper's schedule decays with the training
+  step, which a dataset cannot know; a fixed N(0, sigma^2) image per innocent view (``--view-noise
+  True --noise-sigma0 S``, decay ``constant``) is the most a file can carry, and the victim fits it
+  to the end. Off by default.
+
+Evaluation images are never changed, so V-test of a victim trained on the copy is comparable with a
+clean run on the original.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shlex
+import time
+from pathlib import Path
+from typing import Any
+
+from stealth_ns.attack.config import AttackConfig
+from stealth_ns.attack.injection import injection_entry
+from stealth_ns.attack.noise_schedule import noisy_image
+from stealth_ns.attack.record import AttackRecord, write_injection_files
+from stealth_ns.errors import StealthNSError
+from stealth_ns.fingerprint import dataset_fingerprint
+from stealth_ns.image_io import to_uint8
+from stealth_ns.poisoning.dataset_copy import (
+    RECORD_DIR,
+    PoisonedCopy,
+    SourceDataset,
+    append_seed_points,
+    check_output,
+    copy_dataset,
+    open_source,
+    to_dataset_frame,
+    write_record,
+)
+from stealth_ns.poisoning.setup import setup_pipeline, trainer_config
+
+STATIC_NOISE_NOTE = (
+    "the paper's view-consistency noise decays with the training step, which a static dataset cannot "
+    "carry: innocent views get fixed noise (decay 'constant') or none"
+)
+
+
+def data_only_attack(attack: AttackConfig) -> AttackConfig:
+    """``attack`` checked for a static dataset (StealthNSError naming the option that cannot apply)."""
+    if attack.injection_step != 0:
+        raise StealthNSError(
+            f"--injection-step {attack.injection_step}: a dataset carries poison only in its seed points, "
+            "i.e. at step 0 (leave --injection-step at 0)"
+        )
+    if attack.view_noise and attack.noise_decay != "constant":
+        raise StealthNSError(
+            f"--noise-decay {attack.noise_decay}: {STATIC_NOISE_NOTE}; use --noise-decay constant"
+        )
+    if not (attack.gt_replacement or attack.density_guided or attack.view_noise):
+        raise StealthNSError("every component is off (--gt-replacement, --density-guided, --view-noise)")
+    return dataclasses.replace(attack, enabled=True)
+
+
+def victim_command(source: SourceDataset, output: Path, method: str = "stealth-splat-lite") -> str:
+    """The ns-train command of a plain (attack-free) victim on a poisoned copy."""
+    dataparser, options = source.dataparser
+    words = ["ns-train", method, "--pipeline.attack.enabled", "False", "--vis", "tensorboard", dataparser]
+    return shlex.join([*words, "--data", str(output), *options])
+
+
+def poison_dataset(
+    data: Path,
+    output: Path,
+    attack: AttackConfig,
+    method: str = "stealth-splat-lite",
+    seed: int = 0,
+    overwrite: bool = False,
+) -> str:
+    """Write the data-only poisoned copy of ``data`` into ``output``; returns a summary for the console."""
+    t0 = time.perf_counter()
+    attack = data_only_attack(attack)
+    source = open_source(data)
+    check_output(source, output, overwrite)  # before any work: nothing of the user's is touched
+    pipeline = setup_pipeline(trainer_config(source, attack, method, seed))
+    copy = copy_dataset(source, output, overwrite)
+    dm = pipeline.datamanager
+    outputs = dm.train_dataparser_outputs
+    details: dict[str, Any] = {
+        "threat_model": "data-only",
+        "source_train_fingerprint": dataset_fingerprint(outputs),
+        "static_noise_sigma": attack.noise_sigma0 if attack.view_noise else 0.0,
+        "noise_note": STATIC_NOISE_NOTE,
+        "method": method,
+        "seed": seed,
+    }
+    injection = None
+    if attack.density_guided:
+        injection = _add_poison_points(pipeline, copy, source)
+    if attack.gt_replacement:
+        _write_targets(pipeline, copy)
+    if attack.view_noise:
+        _write_static_noise(pipeline, copy, attack)
+    details["seconds"] = time.perf_counter() - t0
+    record = AttackRecord(
+        config=dataclasses.asdict(attack),
+        views=pipeline.poison_views,
+        injection_step=0 if attack.density_guided else None,
+        noise=None,
+        injection=injection,
+    )
+    folder = write_record(copy, record, details)
+    return _summary(copy, record, folder, victim_command(source, copy.root, method))
+
+
+def _add_poison_points(pipeline: Any, copy: PoisonedCopy, source: SourceDataset) -> Any:
+    """Place the poison on the seed-initialised model and append it to the copy's seed cloud."""
+    placement = pipeline.poison_placement()
+    if placement.means.shape[0] == 0:
+        raise StealthNSError(
+            "no illusion pixel has room for a poison point (t_max < t_min on every ray); lower "
+            "--t-min-fraction or --t-min"
+        )
+    xyz = to_dataset_frame(placement.means, pipeline.datamanager.train_dataparser_outputs, source)
+    append_seed_points(copy, xyz, to_uint8(placement.colors.clamp(0, 1)))
+    write_injection_files(
+        copy.root / RECORD_DIR, placement.means, placement.colors, placement.grid, placement.kde
+    )
+    return injection_entry(placement, 0, int(pipeline.model.num_points))
+
+
+def _write_targets(pipeline: Any, copy: PoisonedCopy) -> None:
+    from stealth_ns.pipeline import training_target
+
+    dm = pipeline.datamanager
+    files = dm.train_dataparser_outputs.image_filenames
+    for v in pipeline.poison_views:
+        image = training_target(v, dm.cached_train[v.index]["image"])
+        copy.write_image(v.name, files[v.index], to_uint8(image), "illusion composite I_ILL")
+
+
+def _write_static_noise(pipeline: Any, copy: PoisonedCopy, attack: AttackConfig) -> None:
+    dm = pipeline.datamanager
+    files = dm.train_dataparser_outputs.image_filenames
+    poisoned = {v.index for v in pipeline.poison_views}
+    for index, name in enumerate(dm.train_image_names):
+        if index in poisoned:
+            continue
+        noisy = noisy_image(dm.cached_train[index]["image"], attack.noise_sigma0, attack.seed, index, 0)
+        copy.write_image(name, files[index], to_uint8(noisy), f"static noise sigma {attack.noise_sigma0:g}")
+
+
+def _summary(copy: PoisonedCopy, record: AttackRecord, folder: Path, victim: str) -> str:
+    changes: dict[str, int] = {}
+    for entry in copy.images.values():
+        changes[entry["change"]] = changes.get(entry["change"], 0) + 1
+    worst = max((e["encode_error_255"] for e in copy.images.values()), default=0.0)
+    lines = [
+        f"poisoned copy of {copy.source.root} written to {copy.root} ({copy.source.format})",
+        "  poisoned view(s): " + ", ".join(v.name for v in record.views),
+        *(f"  {n} image(s): {change}" for change, n in changes.items()),
+        f"  seed points: +{copy.seed_points_added} poison points",
+    ]
+    if worst > 0:
+        lines.append(f"  re-encoding the images changed pixels by up to {worst:g}/255 (lossy format)")
+    lines += [
+        f"  record: {folder} (the input was not written)",
+        f"train a victim on it: {victim}",
+        "  (on CUDA, stock splatfacto works the same: ns-train splatfacto ... --data " + f"{copy.root})",
+    ]
+    return "\n".join(lines)

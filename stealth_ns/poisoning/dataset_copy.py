@@ -1,0 +1,283 @@
+"""A poisoned copy of a dataset: the one place that writes one.
+
+The data-only StealthAttack (:mod:`stealth_ns.poisoning.data_only`) and IPA-Splat
+(:mod:`stealth_ns.poisoning.ipa_splat`) both end the same way: a copy of the user's nerfstudio-data or
+COLMAP dataset in which some training images are replaced and (data-only) the seed points have poison
+points added, so that any 3DGS trainer can consume it. This module
+
+* checks the input and the output folder (never the input, nor inside it, nor around it; an existing
+  output only when it is an earlier poisoned copy and ``overwrite`` is given);
+* copies the whole dataset folder, and files it references outside itself (the images of a seeded copy
+  made by ``stealth-ns seed-points --output``) into ``external/``, rewriting those references;
+* writes replaced images in the file's own format and at its own path (re-reads them and reports how
+  far the written pixels are from the intended ones: 0 for PNG, the encoder's error for JPEG);
+* appends points to the seed cloud (the transforms' PLY, or COLMAP's ``points3D``), mapping them from
+  nerfstudio's normalised frame back into the dataset's own;
+* writes the attack record into ``OUTPUT/attack/`` (the same record a poisoned run has), which
+  ``stealth-ns report`` and ``bench`` read for a victim trained on the copy.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from stealth_ns.attack.record import RECORD_FILE, AttackRecord
+from stealth_ns.errors import StealthNSError
+from stealth_ns.image_io import read_image, save_image
+from stealth_ns.json_io import write_json_atomic
+
+DatasetFormat = Literal["nerfstudio-data", "colmap"]
+#: The attack record of a poisoned copy, relative to the copy (as ``<run>/attack`` of a run).
+RECORD_DIR = "attack"
+#: Files referenced from outside the dataset folder are copied under this folder of the copy.
+EXTERNAL_DIR = "external"
+_FRAME_FILE_KEYS = ("file_path", "depth_file_path", "mask_path")
+
+
+@dataclass(frozen=True)
+class SourceDataset:
+    """A dataset folder to copy: its format, and for COLMAP where its model is."""
+
+    root: Path  # absolute
+    format: DatasetFormat
+    colmap_path: str | None = None  # COLMAP model folder, relative to root
+    has_seed_points: bool = True
+
+    @property
+    def dataparser(self) -> tuple[str, tuple[str, ...]]:
+        """nerfstudio's dataparser name and its options after ``--data`` for this dataset."""
+        if self.format == "colmap":
+            return "colmap", ("--colmap-path", str(self.colmap_path), "--downscale-factor", "1")
+        return "nerfstudio-data", ()
+
+
+def open_source(data: Path) -> SourceDataset:
+    """The dataset at ``data`` (StealthNSError with one line for a missing folder or another format)."""
+    from stealth_ns.evaluation.experiments import inspect_folder
+
+    src = inspect_folder("--data", str(data))
+    if src.format == "blender":
+        raise StealthNSError(
+            f"{data} is a Blender dataset: poisoned copies are written for nerfstudio-data and COLMAP "
+            f"datasets; convert it with `stealth-ns seed-points --data {data} --output DIR` and poison DIR"
+        )
+    assert src.path is not None and src.format is not None
+    return SourceDataset(src.path, src.format, src.colmap_path, src.seed_points != "triangulated")
+
+
+def is_poisoned_copy(folder: Path) -> bool:
+    """Whether ``folder`` is a poisoned copy written by stealth-ns (its record says so)."""
+    try:
+        data = json.loads((folder / RECORD_DIR / RECORD_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and isinstance(data.get("poisoned_dataset"), dict)
+
+
+def check_output(source: SourceDataset, output: Path, overwrite: bool) -> Path:
+    """The absolute output folder, after refusing one that would write into the input or lose data."""
+    out = Path(os.path.abspath(Path(output).expanduser()))
+    root = source.root
+    if out == root or out.is_relative_to(root):
+        raise StealthNSError(
+            f"--output {output} is inside the input dataset {root}: the input is never written"
+        )
+    if root.is_relative_to(out):
+        raise StealthNSError(f"--output {output} contains the input dataset {root}: give another folder")
+    if out.exists() and not out.is_dir():
+        raise StealthNSError(f"--output {output} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise StealthNSError(
+                f"--output {output} is not empty; give a new folder (or --overwrite to replace an earlier "
+                "poisoned copy)"
+            )
+        if not is_poisoned_copy(out):
+            raise StealthNSError(
+                f"--output {output} is not empty and is not a poisoned copy written by stealth-ns: "
+                "--overwrite replaces only those"
+            )
+    return out
+
+
+@dataclass
+class PoisonedCopy:
+    """A poisoned copy being written: where each source file went, what was changed."""
+
+    source: SourceDataset
+    root: Path
+    moved: dict[Path, Path] = field(default_factory=dict)  # absolute source file outside root -> copy
+    images: dict[str, dict[str, Any]] = field(default_factory=dict)  # view name -> what was written
+    seed_points_added: int = 0
+
+    def path_of(self, source_file: Path) -> Path:
+        """The copy of a file of the source dataset (as nerfstudio's dataparser named it)."""
+        path = Path(os.path.abspath(source_file))
+        if path in self.moved:
+            return self.moved[path]
+        if path.is_relative_to(self.source.root):
+            return self.root / path.relative_to(self.source.root)
+        raise StealthNSError(f"{source_file} is not a file of the dataset {self.source.root}")
+
+    def write_image(self, name: str, source_file: Path, image: np.ndarray, change: str) -> None:
+        """Replace a training image of the copy by ``image`` (uint8 ``[H, W, C]``, C as the file had),
+        in the file's own format; records the largest difference (0-255) between the pixels written
+        and those intended (0 for PNG)."""
+        path = self.path_of(source_file)
+        save_image(path, image)
+        error = max_abs_difference(read_image(path, f"written image {path}"), image)
+        self.images[name] = {
+            "file": str(path.relative_to(self.root)),
+            "change": change,
+            "encode_error_255": error,
+        }
+
+
+def max_abs_difference(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest absolute difference between two uint8 images of one shape, on the 0-255 scale."""
+    return float(np.abs(a.astype(np.int16) - b.astype(np.int16)).max())
+
+
+def copy_dataset(source: SourceDataset, output: Path, overwrite: bool = False) -> PoisonedCopy:
+    """Copy ``source`` into ``output`` (checked by :func:`check_output`); files the dataset references
+    outside its folder are copied into ``output/external`` and the references rewritten."""
+    out = check_output(source, output, overwrite)
+    if out.exists():
+        shutil.rmtree(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        shutil.copytree(source.root, out, symlinks=False)
+    except OSError as err:
+        raise StealthNSError(f"cannot copy {source.root} to {out}: {err.strerror or err}") from None
+    # marks the folder as a poisoned copy from now on (so --overwrite may replace an unfinished one);
+    # write_record replaces it with the full record at the end
+    (out / RECORD_DIR).mkdir(exist_ok=True)
+    write_json_atomic(out / RECORD_DIR / RECORD_FILE, {"poisoned_dataset": {"complete": False}})
+    copy = PoisonedCopy(source, out)
+    if source.format == "nerfstudio-data":
+        _internalise_references(copy)
+    return copy
+
+
+def _internalise_references(copy: PoisonedCopy) -> None:
+    """Make a nerfstudio-data copy self-contained: files its transforms.json names outside the dataset
+    folder are copied into ``external/`` and the paths rewritten (relative to the copy)."""
+    path = copy.root / "transforms.json"
+    meta = json.loads(path.read_text(encoding="utf-8"))
+    changed = False
+
+    def internal(value: str) -> str:
+        nonlocal changed
+        source = Path(os.path.abspath(copy.source.root / value))
+        if source.is_relative_to(copy.source.root):
+            return value
+        if source not in copy.moved:
+            target = copy.root / EXTERNAL_DIR / source.parent.name / source.name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, target)
+            copy.moved[source] = target
+        changed = True
+        return str(copy.moved[source].relative_to(copy.root))
+
+    for frame in meta.get("frames", []):
+        for key in _FRAME_FILE_KEYS:
+            if isinstance(frame.get(key), str):
+                frame[key] = internal(frame[key])
+    if isinstance(meta.get("ply_file_path"), str):
+        meta["ply_file_path"] = internal(meta["ply_file_path"])
+    if changed:
+        write_json_atomic(path, meta)
+
+
+# ---------------------------------------------------------------------------------- seed points
+def _applied_transform(source: SourceDataset) -> np.ndarray | None:
+    """[4, 4] the ``applied_transform`` nerfstudio-data's parser composes into its dataparser transform
+    (present in transforms.json, or implied by a ``colmap/sparse/0`` folder), None when there is none."""
+    meta = json.loads((source.root / "transforms.json").read_text(encoding="utf-8"))
+    applied = meta.get("applied_transform")
+    if applied is None and (source.root / "colmap" / "sparse" / "0").exists():
+        applied = [[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 0]]
+    return None if applied is None else np.vstack([np.asarray(applied, dtype=np.float64), [0, 0, 0, 1]])
+
+
+def to_dataset_frame(points: torch.Tensor | np.ndarray, outputs: Any, source: SourceDataset) -> np.ndarray:
+    """[M, 3] points in nerfstudio's normalised frame -> the frame of the dataset's seed points.
+
+    nerfstudio loads seed points as ``p' = s * (M @ [p, 1])`` with ``s`` the dataparser scale and ``M``
+    the dataparser transform, except that nerfstudio-data's transform includes the ``applied_transform``
+    its PLY already has (``M = T @ A``, points use ``T``). This inverts that.
+    """
+    m = np.vstack([outputs.dataparser_transform.double().cpu().numpy(), [0, 0, 0, 1]])
+    if source.format == "nerfstudio-data" and (applied := _applied_transform(source)) is not None:
+        m = m @ np.linalg.inv(applied)
+    p = np.asarray(points, dtype=np.float64) / float(outputs.dataparser_scale)
+    homo = np.concatenate([p, np.ones((len(p), 1))], axis=1)
+    return (homo @ np.linalg.inv(m).T)[:, :3]
+
+
+def append_seed_points(copy: PoisonedCopy, xyz: np.ndarray, rgb: np.ndarray) -> Path:
+    """Add points (``xyz`` [M, 3] in the dataset's frame, ``rgb`` [M, 3] uint8) to the copy's seed cloud;
+    returns the file written."""
+    if copy.source.format == "colmap":
+        path = _append_colmap_points(copy.root / str(copy.source.colmap_path), xyz, rgb)
+    else:
+        path = _append_ply_points(copy.root, xyz, rgb)
+    copy.seed_points_added += len(xyz)
+    return path
+
+
+def _append_ply_points(root: Path, xyz: np.ndarray, rgb: np.ndarray) -> Path:
+    import open3d as o3d
+
+    from stealth_ns.scenes.writer import write_ply
+
+    meta = json.loads((root / "transforms.json").read_text(encoding="utf-8"))
+    ply = meta.get("ply_file_path")
+    if not isinstance(ply, str):
+        raise StealthNSError(f"{root / 'transforms.json'} names no seed points (ply_file_path)")
+    path = root / ply
+    cloud = o3d.io.read_point_cloud(str(path))
+    old_xyz = np.asarray(cloud.points, dtype=np.float64)
+    old_rgb = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
+    if old_rgb is None:
+        old_rgb = np.full((len(old_xyz), 3), 128, dtype=np.uint8)
+    write_ply(path, np.concatenate([old_xyz, xyz]), np.concatenate([old_rgb, rgb.astype(np.uint8)]))
+    return path
+
+
+def _append_colmap_points(model: Path, xyz: np.ndarray, rgb: np.ndarray) -> Path:
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(model))
+    for p, c in zip(np.asarray(xyz, dtype=np.float64), np.asarray(rgb, dtype=np.uint8), strict=True):
+        rec.add_point3D(p, pycolmap.Track(), c)
+    if (model / "points3D.bin").is_file():
+        rec.write_binary(str(model))
+        return model / "points3D.bin"
+    rec.write_text(str(model))
+    return model / "points3D.txt"
+
+
+# ---------------------------------------------------------------------------------- the record
+def write_record(copy: PoisonedCopy, record: AttackRecord, details: dict[str, Any]) -> Path:
+    """Write the copy's attack record (``OUTPUT/attack``), with ``details`` and the images written
+    under its ``poisoned_dataset`` key; returns the record folder."""
+    record.poisoned_dataset = {
+        **details,
+        "source": str(copy.source.root),
+        "format": copy.source.format,
+        "images_written": copy.images,
+        "seed_points_added": copy.seed_points_added,
+        "complete": True,
+    }
+    folder = copy.root / RECORD_DIR
+    record.write(folder, views=True)
+    return folder

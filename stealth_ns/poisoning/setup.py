@@ -1,0 +1,64 @@
+"""A stealth-ns pipeline on a user's dataset, outside ``ns-train``: the attacker's view of the data.
+
+Both dataset attacks need what training sets up -- the dataset as nerfstudio normalises it, the
+illusion targets of the poisoned views, a model initialised from the seed points -- without the
+victim's training loop. :func:`trainer_config` builds the ``TrainerConfig`` ``ns-train METHOD
+nerfstudio-data|colmap --data DATA`` would; :func:`setup_pipeline` sets up its pipeline only.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from stealth_ns.attack.config import AttackConfig
+from stealth_ns.errors import StealthNSError, StealthNSExit
+from stealth_ns.poisoning.dataset_copy import SourceDataset
+
+METHODS = ("stealth-splat-lite", "stealth-splat")
+
+
+def trainer_config(
+    source: SourceDataset, attack: AttackConfig, method: str = "stealth-splat-lite", seed: int = 0
+) -> Any:
+    """The ``TrainerConfig`` of ``METHOD`` on ``source`` with ``attack`` (``--vis tensorboard``)."""
+    from nerfstudio.data.dataparsers.colmap_dataparser import ColmapDataParserConfig
+
+    if method == "stealth-splat-lite":
+        from stealth_ns.method_configs.stealth_splat_lite import stealth_splat_lite as spec
+    elif method == "stealth-splat":
+        from stealth_ns.method_configs.stealth_splat import stealth_splat as spec
+    else:
+        raise StealthNSError(f"unknown method {method!r}; methods: {', '.join(METHODS)}")
+    config = copy.deepcopy(spec.config)
+    datamanager = config.pipeline.datamanager
+    if source.format == "colmap":
+        datamanager.dataparser = ColmapDataParserConfig(
+            colmap_path=Path(str(source.colmap_path)), downscale_factor=1, load_3D_points=True
+        )
+    datamanager.dataparser.data = source.root
+    datamanager.data = source.root
+    config.pipeline.attack = attack
+    config.machine.seed = seed
+    config.vis = "tensorboard"
+    return config
+
+
+def device() -> str:
+    """Where the attacker computes: the GPU when there is one (gsplat), else the CPU backend."""
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def setup_pipeline(config: Any) -> Any:
+    """The config's pipeline, set up for training (data loaded, poisoned views resolved) but not trained;
+    the pipeline's own one-line errors come out as :class:`StealthNSError`."""
+    from nerfstudio.scripts.train import _set_random_seed
+
+    _set_random_seed(config.machine.seed)  # as ns-train seeds before the trainer is set up
+    try:
+        return config.pipeline.setup(device=device(), test_mode="val", world_size=1, local_rank=0)
+    except StealthNSExit as err:
+        raise err.error from None
