@@ -12,7 +12,7 @@ the step. A data poisoner controls only the files. What survives of the three co
   the attack's ``poison_scale`` / ``poison_opacity``.
 * **View-consistency noise**: only as *static* noise. The paper's schedule decays with the training
   step, which a dataset cannot know; a fixed N(0, sigma^2) image per innocent view (``--view-noise
-  True --noise-sigma0 S``, decay ``constant``) is the most a file can carry, and the victim fits it
+  --noise-sigma0 S``, decay ``constant``) is the most a file can carry, and the victim fits it
   to the end. Off by default.
 
 Evaluation images are never changed, so V-test of a victim trained on the copy is comparable with a
@@ -89,6 +89,11 @@ def poison_dataset(
     attack = data_only_attack(attack)
     source = open_source(data)
     check_output(source, output, overwrite)  # before any work: nothing of the user's is touched
+    if attack.density_guided and not source.has_seed_points:
+        raise StealthNSError(
+            f"{data} has no seed points for the density-guided points: triangulate them with "
+            f"`stealth-ns seed-points --data {data} --output DIR` and poison DIR, or give --no-density-guided"
+        )
     pipeline = setup_pipeline(trainer_config(source, attack, method, seed))
     copy = copy_dataset(source, output, overwrite)
     dm = pipeline.datamanager

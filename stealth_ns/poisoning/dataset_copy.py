@@ -40,6 +40,7 @@ RECORD_DIR = "attack"
 #: Files referenced from outside the dataset folder are copied under this folder of the copy.
 EXTERNAL_DIR = "external"
 _FRAME_FILE_KEYS = ("file_path", "depth_file_path", "mask_path")
+_SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 
 
 @dataclass(frozen=True)
@@ -191,8 +192,12 @@ def _internalise_references(copy: PoisonedCopy) -> None:
         for key in _FRAME_FILE_KEYS:
             if isinstance(frame.get(key), str):
                 frame[key] = internal(frame[key])
-    if isinstance(meta.get("ply_file_path"), str):
-        meta["ply_file_path"] = internal(meta["ply_file_path"])
+    for key in ("ply_file_path", "mask_path"):
+        if isinstance(meta.get(key), str):
+            meta[key] = internal(meta[key])
+    for key in _SPLIT_KEYS:  # nerfstudio matches these against the frames' paths
+        if isinstance(meta.get(key), list):
+            meta[key] = [internal(v) if isinstance(v, str) else v for v in meta[key]]
     if changed:
         write_json_atomic(path, meta)
 

@@ -108,7 +108,7 @@ class IPAEpochs:
                     loss.backward()
                 adam.step()
                 change = clip_parameter_change(params, saved, self.cfg.budgets())
-                losses.append(float(loss))
+                losses.append(float(loss.detach()))
             eps = self.cfg.epsilon / 255.0
             with torch.no_grad():
                 for i in self.perturbed:
@@ -134,6 +134,17 @@ class IPAEpochs:
         dm = self.pipeline.datamanager
         cached = {i: cached_format(img, dm.cached_train[i]["image"]) for i, img in self.poisoned.items()}
         dm.set_poison(cached, None)
+
+
+def _check_views(config: Any, attack: AttackConfig) -> None:
+    """StealthNSError (with a did-you-mean) for backdoor views the dataset does not have."""
+    from stealth_ns.attack.views import resolve_views
+    from stealth_ns.datamanager import dataset_image_names
+
+    if attack.views:
+        parser = config.pipeline.datamanager.dataparser
+        files = parser.setup().get_dataparser_outputs("train").image_filenames
+        resolve_views(list(attack.views), dataset_image_names(Path(parser.data), files))
 
 
 def _attacker_trainer(config: Any) -> Any:
@@ -167,8 +178,9 @@ def ipa_poison(
     cfg.validate()
     source = open_source(data)
     check_output(source, output, overwrite)
-    copy = copy_dataset(source, output, overwrite)
     config = trainer_config(source, dataclasses.replace(attack, enabled=False), method, seed)
+    _check_views(config, attack)  # bad views fail before anything is written
+    copy = copy_dataset(source, output, overwrite)
     if iterations is not None:
         config.max_num_iterations = int(iterations)
     config.output_dir = copy.root / "attack"
