@@ -1,8 +1,9 @@
 """`stealth-ns bench attack`: the plan, reuse of finished runs, resuming, the tables, bad input.
 
-The fast tests replace ns-train (``runs.run_command``) and the run comparison
-(``report.compare_runs``) with fakes that write what the real ones would; the one slow test
-trains a real tiny run through :mod:`stealth_ns.evaluation.runs`.
+The fast tests replace ns-train (``runs.run_command``), the run comparison
+(``report.compare_runs``) and the making of a poisoned copy (``PoisonJob.make``, which would run
+``stealth-ns poison-dataset`` / ``ipa-poison``) with fakes that write what the real ones would; the
+one slow test trains a real tiny run through :mod:`stealth_ns.evaluation.runs`.
 """
 
 from __future__ import annotations
@@ -20,8 +21,10 @@ from conftest import run_cli
 from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation import experiments, runs
 from stealth_ns.evaluation.experiments import bench_plan, render_markdown, run_bench, table_data
+from stealth_ns.evaluation.poisoned_copies import PoisonJob
 from stealth_ns.evaluation.runs import TrainSpec, is_finished, run_status, train
-from stealth_ns.method_configs.attack_experiments import DEFAULT_SCENES, RUNS, TABLES, get_table
+from stealth_ns.json_io import write_json_atomic
+from stealth_ns.method_configs.attack_experiments import CLEAN_ARGS, DEFAULT_SCENES, RUNS, TABLES, get_table
 
 TINY = {"resolution": "64x48", "views": 16}
 TABLE6_ORDER = ["orbit/clean", "orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"]
@@ -89,14 +92,46 @@ class FakeCompare:
         }  # fmt: skip
 
 
+class FakePoison:
+    """Stands in for PoisonJob.make (no ``stealth-ns poison-dataset`` / ``ipa-poison`` subprocess): the
+    copy is the source folder with a complete attack record, and the marker a real make writes."""
+
+    def __init__(self) -> None:
+        self.calls: list[PoisonJob] = []
+        self.fail: set[str] = set()  # copy folder names whose making fails
+
+    def make(self, job: PoisonJob) -> None:
+        self.calls.append(job)
+        if job.output.name in self.fail:
+            raise RuntimeError(f"{job.kind} failed (CUDA error: out of memory; log: {job.log})")
+        if job.output.exists():
+            shutil.rmtree(job.output)
+        shutil.copytree(job.source, job.output)
+        (job.output / "attack").mkdir(exist_ok=True)
+        record = {"poisoned_dataset": {"complete": True}}
+        (job.output / "attack" / "attack.json").write_text(json.dumps(record))
+        write_json_atomic(job.marker, job.identity())
+
+    @property
+    def made(self) -> list[str]:
+        return [job.output.name for job in self.calls]
+
+
 @pytest.fixture
-def fakes(monkeypatch):
+def fake_poison(monkeypatch):
+    fake = FakePoison()
+    monkeypatch.setattr(PoisonJob, "make", lambda job: fake.make(job))
+    return fake
+
+
+@pytest.fixture
+def fakes(monkeypatch, fake_poison):
     from stealth_ns.evaluation import report
 
     training, compare = FakeTraining(), FakeCompare()
     monkeypatch.setattr(runs, "run_command", training)
     monkeypatch.setattr(report, "compare_runs", compare)
-    return SimpleNamespace(training=training, compare=compare)
+    return SimpleNamespace(training=training, compare=compare, poison=fake_poison)
 
 
 # ------------------------------------------------------------------------------ the plan
@@ -124,25 +159,42 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     ]
     keys = [p.key for p in plan.runs]
     orbit_runs = [r for r in RUNS if r.scene == "orbit"]
-    assert len(keys) == len(set(keys)) == 25 == len(orbit_runs) + 2 * 4
-    assert keys[0] == "orbit/clean" and keys[17] == "forward/clean" and keys[21] == "facing/clean"
+    # orbit: 17 in-loop runs + data-only, ipa, ipa-views-2/3/4; a KDE scene: 4 + ipa-easy/median/hard,
+    # data-only-median
+    assert len(keys) == len(set(keys)) == 38 == len(orbit_runs) + 2 * 8
+    assert keys[0] == "orbit/clean" and keys[22] == "forward/clean" and keys[30] == "facing/clean"
     full = plan.get("orbit/full")
     assert full.tables == (1, 4, 5, 6)
     assert plan.get("forward/median").tables == (1, 2) == plan.get("facing/median").tables
     assert plan.get("facing/easy").tables == (2,)
-    assert len({p.spec.run_dir for p in plan.runs}) == 25
+    assert plan.get("orbit/ipa").tables == (1,) == plan.get("orbit/data-only").tables
+    assert plan.get("orbit/ipa-views-3").tables == (3,) == plan.get("orbit/views-3").tables
+    assert plan.get("forward/ipa-median").tables == (1, 2) == plan.get("facing/ipa-median").tables
+    assert plan.get("forward/data-only-median").tables == (1,) and plan.get("facing/ipa-easy").tables == (2,)
+    assert len({p.spec.run_dir for p in plan.runs}) == 38
+    # the dataset attacks' copies: one folder per run, beside the runs
+    copies = [p.poison.output for p in plan.runs if p.poison is not None]
+    assert len(copies) == len(set(copies)) == 5 + 2 * 4
+    assert all(c.parent.parent == tmp_path / "poisoned" for c in copies)
     # one run per distinct setting: no two presets of a scene train the same thing
-    settings = {(r.scene, r.args, r.view) for r in RUNS}
-    assert len(settings) == len(RUNS) == 29  # orbit 17, forward / facing / fox 4 each
+    settings = {(r.scene, r.args, r.view, r.poisoning, r.poison_args) for r in RUNS}
+    assert len(settings) == len(RUNS) == 46  # orbit 22, forward / facing / fox 8 each
     easy = plan.get("forward/easy")
     assert "<EASY view of the KDE protocol>" in easy.spec.extra
-    assert len(bench_plan(tmp_path, scenes=["orbit"], iterations=30).runs) == 17
+    assert plan.get("forward/ipa-easy").view == "<EASY view of the KDE protocol>"
+    assert len(bench_plan(tmp_path, scenes=["orbit"], iterations=30).runs) == 22
     assert [p.key for p in bench_plan(tmp_path, tables=["2"], scenes=["forward"], iterations=30).runs] == [
         "forward/clean", "forward/easy", "forward/median", "forward/hard",
+        "forward/ipa-easy", "forward/ipa-median", "forward/ipa-hard",
     ]  # fmt: skip
     # Table 1 and 2 columns: orbit, forward, facing, fox (Table 1: fox's Median view, like forward)
     assert [g.label.split()[0] for g in get_table(1).groups] == ["orbit", "forward", "facing", "fox"]
-    assert get_table(1).rows[1].runs == ("full", "median", "median", "median")
+    assert [r.keys for r in get_table(1).rows] == [
+        ("Naive 3DGS (w/o attack)",), ("IPA-Splat",), ("Ours (data-only)",), ("Ours (in-loop)",),
+    ]  # fmt: skip
+    assert get_table(1).rows[1].runs == ("ipa", "ipa-median", "ipa-median", "ipa-median")
+    assert get_table(1).rows[2].runs == ("data-only", *["data-only-median"] * 3)
+    assert get_table(1).rows[3].runs == ("full", "median", "median", "median")
     assert [g.label for g in get_table(2).groups][-3:] == ["fox Easy", "fox Median", "fox Hard"]
 
 
@@ -165,6 +217,12 @@ def test_kde_views_go_on_the_command_line(tmp_path, monkeypatch):
         extra = plan.get(f"forward/{level}").spec.extra
         assert extra[extra.index("--pipeline.attack.views") + 1] == getattr(ranking, level)
     assert "--pipeline.attack.views" not in plan.get("forward/clean").spec.extra
+    # a dataset attack's view goes to its poisoning command, not to the victim's ns-train
+    for name, level in [("ipa-easy", "easy"), ("ipa-median", "median"), ("ipa-hard", "hard"),
+                        ("data-only-median", "median")]:  # fmt: skip
+        planned = plan.get(f"forward/{name}")
+        assert "--pipeline.attack.views" not in planned.spec.extra
+        assert _arg(planned.poison.command(), "--views") == getattr(ranking, level) == planned.view
     assert [t.number for t in plan.tables] == [1, 2]
 
 
@@ -278,6 +336,48 @@ def test_failed_comparison_is_reported_and_retried(tmp_path, monkeypatch, fakes)
     assert fakes.training.trained.count("gt-noise") == 1  # the run itself was reused
 
 
+def test_failed_poisoned_copy_fails_only_its_run(tmp_path, fakes, capsys):
+    """A copy that cannot be made fails its victim run only; the next invocation makes it and trains
+    that run alone (the other copy and every finished run reused)."""
+    fakes.poison.fail = {"ipa"}
+    out = tmp_path / "out"
+    with pytest.raises(StealthNSError, match=r"1 of 4 runs failed \(orbit/ipa\)"):
+        run_bench(out, tables=["1"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    assert fakes.poison.made == ["ipa", "data-only"]  # made after the scene, before any training
+    assert fakes.training.trained == ["clean", "full", "data-only"]
+    assert sorted(fakes.compare.calls) == ["data-only", "full"]
+    captured = capsys.readouterr().out
+    reason = "its poisoned dataset could not be made: ipa failed (CUDA error: out of memory"
+    lines = captured.splitlines()
+    making = [i for i, line in enumerate(lines) if line.startswith(f"FAILED orbit/ipa: {reason}")]
+    training = [i for i, line in enumerate(lines) if line.startswith(f"[3/4] FAILED orbit/ipa: {reason}")]
+    assert len(making) == len(training) == 1 and making[0] < training[0]
+    assert captured.index("poisoning orbit/data-only") < captured.index("[1/4] training orbit/clean")
+    saved = json.loads((out / "results.json").read_text())
+    assert not saved["complete"] and saved["runs"]["orbit/ipa"]["status"] == "failed"
+    assert reason in saved["runs"]["orbit/ipa"]["error"]
+    data_only = saved["runs"]["orbit/data-only"]
+    copy = out / "poisoned" / f"{experiments.scene_dir(out, 'orbit', 0, TINY).name}-30it" / "data-only"
+    assert data_only["status"] == "trained" and data_only["metrics"]["v_illusory_psnr"] == 26.0
+    assert data_only["command"][-3:] == ["nerfstudio-data", "--data", str(copy)]
+    assert (copy / "transforms.json").is_file() and not (copy.parent / "ipa").exists()
+    table1 = (out / "tables.md").read_text().split("## Table 1")[1].split("## ")[0]
+    rows = {line.split("|")[1].strip(): line for line in table1.splitlines() if line.startswith("| ")}
+    assert rows["IPA-Splat"].startswith("| IPA-Splat | n/a |") and "n/a: no numbers for orbit/ipa" in table1
+    assert rows["Ours (data-only)"].startswith("| Ours (data-only) | 26.00 |")
+    assert rows["Ours (in-loop)"].startswith("| Ours (in-loop) | **27.50** |")
+
+    fakes.poison.fail.clear()
+    fakes.poison.calls.clear()
+    fakes.training.trained.clear()
+    again = run_bench(out, tables=["1"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    assert fakes.poison.made == ["ipa"] and fakes.training.trained == ["ipa"]
+    assert again["complete"] and again["runs"]["orbit/ipa"]["status"] == "trained"
+    assert {k: e["status"] for k, e in again["runs"].items() if k != "orbit/ipa"} == {
+        "orbit/clean": "reused", "orbit/full": "reused", "orbit/data-only": "reused",
+    }  # fmt: skip
+
+
 # ------------------------------------------------------------------------------ the tables
 def _fake_entry(ill: float, test: float, clean_test: float, lpips: float | None) -> dict:
     return {
@@ -300,10 +400,17 @@ def test_table_rendering_from_fake_results():
     }
     t1 = table_data(get_table(1), runs_, ("orbit", "forward"))
     assert len(t1["columns"]) == 12 and t1["columns"][0]["label"].startswith("orbit (360°")
-    naive, ours = t1["rows"]
+    naive, ipa, data_only, ours = t1["rows"]
     assert naive["keys"] == ["Naive 3DGS (w/o attack)"] and naive["values"][0] == 13.21
     assert naive["values"][3] == 29.45 and ours["values"][:4] == [27.04, 0.81, 0.369, 27.76]
     assert ours["values"][8] is None and t1["lpips_unavailable"] == ["LPIPS weights missing"]
+    assert ipa["keys"] == ["IPA-Splat"] and ipa["runs"] == ["orbit/ipa", "forward/ipa-median"]
+    assert data_only["keys"] == ["Ours (data-only)"]
+    assert data_only["runs"] == ["orbit/data-only", "forward/data-only-median"]
+    assert ipa["values"] == data_only["values"] == ["n/a"] * 12  # no such runs in runs_
+    assert t1["missing_runs"] == [
+        "forward/data-only-median", "forward/ipa-median", "orbit/data-only", "orbit/ipa",
+    ]  # fmt: skip
 
     t6 = table_data(get_table(6), runs_, ("orbit",))
     assert [r["asr"] for r in t6["rows"]] == ["n/a", "n/a", "n/a", "1/1"]
@@ -318,26 +425,58 @@ def test_table_rendering_from_fake_results():
     }
     md = render_markdown(results)
     assert md.index("## Table 1") < md.index("## Table 6") < md.index("## All runs")
-    assert "IPA-Splat baselines" in md and "IPA-NeRF" in md
+    # the header says what is not implemented: IPA-NeRF only (IPA-Splat has rows now)
+    assert experiments.NOT_IMPLEMENTED in md and "IPA-NeRF (Instant-NGP) baselines" in md
+    assert "IPA-Splat" not in experiments.NOT_IMPLEMENTED
     table1 = md.split("## Table 1")[1].split("## ")[0]
     lines = [line for line in table1.splitlines() if line.startswith("| ")]
     assert lines[0].startswith("| Method | orbit (360°, Mip-NeRF 360-like) V-illusory PSNR↑ |")
     assert lines[1].startswith("| Naive 3DGS (w/o attack) | 13.21 | 0.521 | 0.369 | 29.45 |")
-    assert lines[2].startswith("| Ours | 27.04 | 0.810 | 0.369 | 27.76 | 0.805 | 0.369 | 26.66 | 0.810 | – |")
+    assert lines[2] == "| IPA-Splat |" + " n/a |" * 12
+    assert lines[3] == "| Ours (data-only) |" + " n/a |" * 12
+    assert lines[4].startswith(
+        "| Ours (in-loop) | 27.04 | 0.810 | 0.369 | 27.76 | 0.805 | 0.369 | 26.66 | 0.810 | – |"
+    )
     assert "LPIPS shown as –: LPIPS weights missing" in table1
-    assert "IPA-Splat are not implemented" in table1
+    assert "- IPA-Splat: `stealth-ns ipa-poison`" in table1 and "IPA-NeRF (Nerfacto / Instant-NGP)" in table1
+    assert "is not implemented: no rows" in table1 and "IPA-Splat are not implemented" not in table1
+    assert "- Ours (data-only): `stealth-ns poison-dataset`" in table1
+    assert "n/a: no numbers for forward/data-only-median, forward/ipa-median, orbit/data-only" in table1
     assert "| orbit/full |" in md.split("## All runs")[1]
 
 
 def test_table_specs_are_consistent():
     names = {(r.scene, r.name) for r in RUNS}
     assert [t.number for t in TABLES] == [1, 2, 3, 4, 5, 6]
+    by_key = {(r.scene, r.name): r for r in RUNS}
+    method_rows: list[tuple[int, tuple[str, ...]]] = []
     for table in TABLES:
         for row in table.rows:
             assert len(row.runs) == len(table.groups)
             assert all((g.scene, name) in names for g, name in zip(table.groups, row.runs, strict=True))
+            # a row's method is what its runs are: IPA-Splat rows show ipa-poison victims, the
+            # data-only rows poison-dataset victims, every other row in-loop attacks (or clean runs)
+            kinds = {by_key[g.scene, name].poisoning for g, name in zip(table.groups, row.runs, strict=True)}
+            expected = {"IPA-Splat": "ipa", "Ours (data-only)": "data-only"}.get(row.keys[-1], "")
+            assert kinds == {expected}, (table.number, row.keys)
+            if expected:
+                method_rows.append((table.number, row.keys))
         labels = " ".join(" ".join(r.keys) for r in table.rows)
-        assert "IPA" not in labels  # the baselines are not implemented: no rows pretend to be them
+        assert "IPA-NeRF" not in labels  # not implemented: no rows pretend to be it
+    assert method_rows == [
+        (1, ("IPA-Splat",)), (1, ("Ours (data-only)",)), (2, ("IPA-Splat",)),
+        (3, ("2", "IPA-Splat")), (3, ("3", "IPA-Splat")), (3, ("4", "IPA-Splat")),
+    ]  # fmt: skip
+    # a dataset attack is a plain victim (attack off) poisoned at the same view(s) as its Ours row
+    for run in RUNS:
+        if run.poisoning:
+            assert run.args == CLEAN_ARGS and not run.clean, run.key
+    for k in (2, 3, 4):
+        assert by_key["orbit", f"ipa-views-{k}"].poison_args == ("--multi-view", str(k))
+    for scene in ("forward", "facing", "fox"):
+        for level in ("easy", "median", "hard"):
+            assert by_key[scene, f"ipa-{level}"].view == level == by_key[scene, level].view
+        assert by_key[scene, "data-only-median"].view == "median"
     assert get_table(6).run_keys() == ["orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"]
 
 
@@ -452,7 +591,9 @@ def test_folder_scene_dry_run_plans_its_seed_points(folder_scene, fake_seed_poin
     plan = run_bench(out, tables=["1", "2"], scenes=["orbit", spec], iterations=30, dry_run=True)
     assert plan.scenes == ("orbit", "mine")
     assert [p.key for p in plan.runs] == [
-        "orbit/clean", "orbit/full", "mine/clean", "mine/median", "mine/easy", "mine/hard",
+        "orbit/clean", "orbit/full", "orbit/ipa", "orbit/data-only",
+        "mine/clean", "mine/median", "mine/ipa-median", "mine/data-only-median",
+        "mine/easy", "mine/hard", "mine/ipa-easy", "mine/ipa-hard",
     ]  # fmt: skip
     text = capsys.readouterr().out
     assert f"scene:   mine -> {folder_scene.path}  (nerfstudio-data, no seed points; used in place" in text
@@ -462,9 +603,15 @@ def test_folder_scene_dry_run_plans_its_seed_points(folder_scene, fake_seed_poin
     )
     assert median.endswith(f"nerfstudio-data --data {out / 'scenes' / 'mine'}")
     assert "--pipeline.attack.views '<MEDIAN view of the KDE protocol>'" in median
+    # its dataset attacks poison the seeded copy (not the user's folder)
+    ipa = next(line for line in text.splitlines() if "stealth-ns ipa-poison" in line and "ipa-median" in line)
+    copy = out / "poisoned" / "mine-seed0-30it" / "ipa-median"
+    assert f"--data {out / 'scenes' / 'mine'} --output {copy} --overwrite" in ipa
+    assert ipa.endswith("--views '<MEDIAN view of the KDE protocol>'")
     # Tables 1 and 2 get columns for the folder, like fox's
     t1, t2 = plan.tables
-    assert [g.scene for g in t1.groups][-1] == "mine" and t1.rows[1].runs[-1] == "median"
+    assert [g.scene for g in t1.groups][-1] == "mine" and t1.rows[3].runs[-1] == "median"
+    assert t1.rows[1].runs[-1] == "ipa-median" and t1.rows[2].runs[-1] == "data-only-median"
     assert [g.label for g in t2.groups][-3:] == ["mine Easy", "mine Median", "mine Hard"]
     assert fake_seed_points.calls == [] and not out.exists()
     assert _snapshot(folder_scene.path) == folder_scene.snapshot
@@ -481,7 +628,12 @@ def test_folder_scene_runs_on_its_seeded_copy(folder_scene, fake_seed_points, fa
     assert _snapshot(folder_scene.path) == folder_scene.snapshot  # the user's data is never written
     marker = json.loads((out / "scenes" / f"mine{experiments.SEED_POINTS_MARKER}").read_text())
     assert marker["source"] == str(folder_scene.path) and marker["n_points"] == 1234
-    assert fakes.training.trained == ["clean", "median", "easy", "hard"]
+    assert fakes.training.trained == [
+        "clean", "median", "ipa-median", "data-only-median", "easy", "hard", "ipa-easy", "ipa-hard",
+    ]  # fmt: skip
+    # the dataset attacks' copies are made from the seeded copy, before the trainings
+    assert fakes.poison.made == ["ipa-median", "data-only-median", "ipa-easy", "ipa-hard"]
+    assert {job.source for job in fakes.poison.calls} == {seeded}
     scene = results["scenes"]["mine"]
     sha = hashlib.sha256((folder_scene.path / "transforms.json").read_bytes()).hexdigest()
     assert scene["source"] == "folder" and scene["path"] == str(folder_scene.path)
@@ -494,6 +646,12 @@ def test_folder_scene_runs_on_its_seeded_copy(folder_scene, fake_seed_points, fa
         cmd = results["runs"][f"mine/{level}"]["command"]
         assert _arg(cmd, "--pipeline.attack.views") == views[level]
         assert cmd[-3:] == ["nerfstudio-data", "--data", str(seeded)]
+        # IPA-Splat at the same view: the view went to ipa-poison, the victim trains on the copy
+        copy = out / "poisoned" / "mine-seed0-30it" / f"ipa-{level}"
+        job = next(job for job in fakes.poison.calls if job.output == copy)
+        assert job.kind == "ipa" and job.view == views[level] and job.ready()
+        cmd = results["runs"][f"mine/ipa-{level}"]["command"]
+        assert "--pipeline.attack.views" not in cmd and cmd[-3:] == ["nerfstudio-data", "--data", str(copy)]
     env = results["environment"]
     assert {"torch", "nerfstudio", "gsplat", "numpy", "pycolmap"} <= set(env)
     md = (out / "tables.md").read_text()
@@ -503,6 +661,7 @@ def test_folder_scene_runs_on_its_seeded_copy(folder_scene, fake_seed_points, fa
     fakes.training.trained.clear()
     again = run_bench(out, tables=["1", "2"], scenes=[spec], iterations=30)
     assert len(fake_seed_points.calls) == 1 and fakes.training.trained == []  # all reused
+    assert len(fakes.poison.calls) == 4  # the copies too
     assert "(done: 1234 points, reused" in capsys.readouterr().out
     assert again["scenes"]["mine"]["kde_views"] == views
     # the record gone: the seed points are made again (and the runs, same data, still reused)
@@ -519,10 +678,12 @@ def test_failed_seed_points_fail_only_that_scenes_runs(folder_scene, fakes, tmp_
 
     monkeypatch.setattr(seed_points, "make_seed_points", broken)
     out = tmp_path / "out"
-    with pytest.raises(StealthNSError, match=r"2 of 4 runs failed \(mine/clean, mine/median\)"):
+    failed_runs = r"mine/clean, mine/median, mine/ipa-median, mine/data-only-median"
+    with pytest.raises(StealthNSError, match=rf"4 of 8 runs failed \({failed_runs}\)"):
         run_bench(out, tables=["1"], scenes=["orbit", f"mine={folder_scene.path}"], iterations=30,
                   scene_options=TINY)  # fmt: skip
-    assert fakes.training.trained == ["clean", "full"]  # orbit's runs went on
+    assert fakes.training.trained == ["clean", "full", "ipa", "data-only"]  # orbit's runs went on
+    assert fakes.poison.made == ["ipa", "data-only"]  # no copies of a scene that cannot be used
     captured = capsys.readouterr()
     assert "FAILED mine: making its seed points failed: triangulation gave no points" in captured.err
     saved = json.loads((out / "results.json").read_text())
@@ -541,7 +702,7 @@ def test_default_scenes_skip_a_missing_fox(tmp_path, monkeypatch, capsys):
         "skipping fox: ../shared/data/fox not found (a dataset folder of the default --scenes; "
         "give --scenes fox=PATH to use it from elsewhere)"
     )
-    assert "6 runs: 6 to train" in out and "fox/" not in out
+    assert "12 runs: 12 to train" in out and "fox/" not in out  # 3 scenes x clean, IPA, data-only, in-loop
     # named explicitly, a missing folder is an error
     for scenes in (["fox"], ["orbit", "fox=../shared/data/fox"]):
         with pytest.raises(StealthNSError, match=r"^scene fox: \.\./shared/data/fox not found$"):

@@ -748,7 +748,7 @@ def _planned_run(
     if run.poisoning:  # a plain victim on the poisoned copy of the scene
         folder = output / "poisoned" / f"{experiment}-{iterations}it" / run.name
         poison = PoisonJob(
-            run.poisoning, dirs[run.scene], folder, view, run.poison_args, method, seed, iterations
+            run.poisoning, dirs[run.scene], folder, view, run.poison_args, method, seed, iterations, scene_id
         )
         data, scene_id = folder, poison.scene_id
     spec = TrainSpec(
@@ -1211,7 +1211,10 @@ def _run_plan(
     plan.scene_errors.update(failed)
     print(plan.describe(dry_run=False), flush=True)
     print(flush=True)
-    copies = {p.key: p.poison for p in plan.runs if p.poison is not None and p.run.scene not in failed}
+    # no copy for a scene that cannot run (generation, seed points or its KDE ranking failed)
+    copies = {
+        p.key: p.poison for p in plan.runs if p.poison is not None and p.run.scene not in plan.scene_errors
+    }
     plan.run_errors.update(ensure_copies({k: job for k, job in copies.items() if job is not None}))
     failure = None
     try:

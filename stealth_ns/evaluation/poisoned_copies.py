@@ -42,12 +42,16 @@ class PoisonJob:
     method: str
     seed: int
     iterations: int
+    source_id: str | None = None
+    """The source in the identity, as the scene's other runs name it (a folder: ``NAME:CONTENT-HASH``);
+    None: the source folder's name (a generated scene's holds its seed and options). Never a path, so
+    a moved output folder keeps its copies."""
 
     def identity(self) -> dict[str, Any]:
         """What a copy on disk must have been made from to be reused."""
         identity: dict[str, Any] = {
             "kind": self.kind,
-            "source": str(self.source),
+            "source": self.source_id or self.source.name,
             "view": self.view,
             "args": list(self.args),
             "method": self.method,
