@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from test_bench_attack import TINY, fakes  # noqa: F401  (the fixture)
+from test_bench_attack import TINY, fake_poison, fakes  # noqa: F401  (the fixtures)
 
 from stealth_ns.defences.config import DEFENCES
 from stealth_ns.evaluation import defend as defend_module
