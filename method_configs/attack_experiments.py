@@ -75,6 +75,8 @@ ViewChoice = Literal["median-index", "easy", "median", "hard"]
 KDE_LEVELS: tuple[ViewChoice, ...] = ("easy", "median", "hard")
 #: Metric families of a column group: masked metrics at the poisoned view(s), held-out views.
 Metric = Literal["v_illusory", "v_test"]
+#: The attacks a table row shows (``bench attack --attacks``): in the training loop, dataset attacks.
+ATTACKS: tuple[str, ...] = ("in-loop", "data-only", "ipa")
 
 ATTACK = "--pipeline.attack."
 
@@ -317,6 +319,16 @@ class TableSpec:
             replace(r, runs=r.runs + tuple(r.runs[i] for _ in extra for i in like)) for r in self.rows
         )
         return replace(self, groups=groups, rows=rows)
+
+    def for_attacks(self, attacks: tuple[str, ...]) -> TableSpec:
+        """This table without the rows of attacks not in ``attacks`` (:data:`ATTACKS`); naive rows stay."""
+
+        def kept(row: Row) -> bool:
+            runs = zip(self.groups, row.runs, strict=True)
+            kinds = {get_run(g.scene, name).poisoning or "in-loop" for g, name in runs}
+            return row.naive or kinds <= set(attacks)
+
+        return replace(self, rows=tuple(r for r in self.rows if kept(r)))
 
     def run_keys(self, scenes: tuple[str, ...] | None = None) -> list[str]:
         """``scene/name`` of every run the table shows (its clean baselines excluded)."""

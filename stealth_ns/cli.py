@@ -136,6 +136,10 @@ class BenchAttack:
     """Seed of the scenes, the training and the attack's noise."""
     dry_run: bool = False
     """Only list the runs: which would train, which are reused, with their ns-train commands."""
+    attacks: tuple[Literal["in-loop", "data-only", "ipa"], ...] = ("in-loop", "data-only", "ipa")
+    """Attacks whose rows Tables 1-3 show: in-loop (ns-train stealth-splat*), data-only (a poisoned dataset
+    from stealth-ns poison-dataset, plain victim) and ipa (IPA-Splat, stealth-ns ipa-poison: the attacker
+    trains once more per row). docs/baselines.md."""
     defend: bool = False
     """Also Table D, stealth under defences: stealth-ns defend on each scene's Table 1 poisoned run into
     OUTPUT/defend/SCENE (adds Table 1; its input-filter defence retrains each of those runs once;
@@ -184,6 +188,7 @@ class BenchAttack:
             seed=self.seed,
             dry_run=self.dry_run,
             defend=self.defend,
+            attacks=self.attacks,
             executor=ExecutorOptions(
                 name=self.executor,
                 address=self.ray_address,

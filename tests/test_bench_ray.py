@@ -446,6 +446,7 @@ def test_bench_on_a_two_node_ray_cluster(ray_cluster, tiny_orbit_scene, tmp_path
     out = tmp_path / "out"
     cmd = [str(Path(sys.executable).parent / "stealth-ns"), "bench", "attack", "--executor", "ray",
            "--ray-address", ray_cluster.address, "--ray-cpus-per-run", "1", "--tables", "1",
+           "--attacks", "in-loop",
            "--scenes", f"tiny={tiny_orbit_scene}", "--iterations", "30", "--output", str(out)]  # fmt: skip
     median_dir = out / "runs" / "tiny-seed0-30it" / "stealth-splat-lite" / "median"
     t0 = time.monotonic()

@@ -15,6 +15,7 @@ import pytest
 import tyro
 
 from stealth_ns.cli import COMMANDS
+from stealth_ns.errors import StealthNSError
 from stealth_ns.evaluation import experiments, poisoned_copies
 from stealth_ns.evaluation.experiments import bench_plan, run_bench
 from stealth_ns.evaluation.poisoned_copies import PoisonJob, ensure_copies
@@ -325,3 +326,20 @@ def test_copies_are_named_by_content_not_path(tmp_path, monkeypatch):
     meta["frames"][0]["transform_matrix"][0][3] += 0.5
     (folder / "transforms.json").write_text(json.dumps(meta))
     assert ipa_identity()["source"] != before["source"]
+
+
+def test_attacks_option_plans_and_shows_only_those_rows(tmp_path):
+    plan = bench_plan(tmp_path, tables=["1", "3"], scenes=["orbit"], iterations=30, attacks=["in-loop"])
+    assert [p.key for p in plan.runs] == [
+        "orbit/clean",
+        "orbit/full",
+        "orbit/views-2",
+        "orbit/views-3",
+        "orbit/views-4",
+    ]
+    assert [r.keys for r in plan.tables[0].rows] == [("Naive 3DGS (w/o attack)",), ("Ours (in-loop)",)]
+    ipa = bench_plan(tmp_path, tables=["1"], scenes=["orbit"], iterations=30, attacks=["ipa"])
+    # the naive row scores the clean run at the in-loop run's poisoned views: that run stays planned
+    assert [p.key for p in ipa.runs] == ["orbit/clean", "orbit/full", "orbit/ipa"] and ipa.attacks == ("ipa",)
+    with pytest.raises(StealthNSError, match="--attacks takes some of in-loop, data-only, ipa"):
+        bench_plan(tmp_path, tables=["1"], scenes=["orbit"], iterations=30, attacks=["nope"])

@@ -53,6 +53,7 @@ from stealth_ns.evaluation.runs import (
 from stealth_ns.fingerprint import file_sha256
 from stealth_ns.json_io import json_safe, write_json_atomic
 from stealth_ns.method_configs.attack_experiments import (
+    ATTACKS,
     DEFAULT_SCENES,
     FOLDERS,
     KDE_LEVELS,
@@ -429,6 +430,8 @@ class Plan:
     """Where the trainings run (``--executor``)."""
     defend: bool = False
     """Also Table D: ``stealth-ns defend`` on each scene's Table 1 run (``--defend``)."""
+    attacks: tuple[str, ...] = ATTACKS
+    """The attacks whose rows are planned (``--attacks``)."""
     run_errors: dict[str, str] = field(default_factory=dict)
     """Runs that cannot train (their poisoned dataset could not be made): they fail, the rest go on."""
 
@@ -593,6 +596,7 @@ def bench_plan(
     scene_options: dict[str, Any] | None = None,
     write_cache: bool = False,
     rank_views: bool = True,
+    attacks: Sequence[str] = ATTACKS,
 ) -> Plan:
     """Plan the runs of ``tables`` on ``scenes`` (bad input: :class:`StealthNSError`).
 
@@ -606,7 +610,8 @@ def bench_plan(
     chosen_scenes = tuple(src.name for src in sources)
     iterations = _checked_run_settings(method, seed, iterations)
     output = Path(output).expanduser().absolute()
-    table_specs, skipped, uses = _table_runs(numbers, chosen_scenes)
+    attacks = _checked_attacks(attacks)
+    table_specs, skipped, uses = _table_runs(numbers, chosen_scenes, attacks)
     used_scenes = tuple(s for s in chosen_scenes if any(k.startswith(f"{s}/") for k in uses))
     for scene in used_scenes:  # a scene's clean run serves every table that runs on the scene
         numbers_on_scene = {n for key, ns in uses.items() if key.startswith(f"{scene}/") for n in ns}
@@ -656,7 +661,17 @@ def bench_plan(
         seed_points=records,
         skipped_scenes=list(skipped_scenes),
         scene_errors=errors,
+        attacks=attacks,
     )
+
+
+def _checked_attacks(attacks: Sequence[str]) -> tuple[str, ...]:
+    bad = [a for a in attacks if a not in ATTACKS]
+    if bad or not attacks:
+        raise StealthNSError(
+            f"--attacks takes some of {', '.join(ATTACKS)}, got {' '.join(attacks) or 'none'}"
+        )
+    return tuple(a for a in ATTACKS if a in attacks)
 
 
 def _checked_run_settings(method: str, seed: int, iterations: int | None) -> int:
@@ -673,7 +688,7 @@ def _checked_run_settings(method: str, seed: int, iterations: int | None) -> int
 
 
 def _table_runs(
-    numbers: Sequence[int], scenes: tuple[str, ...]
+    numbers: Sequence[int], scenes: tuple[str, ...], attacks: tuple[str, ...] = ATTACKS
 ) -> tuple[list[TableSpec], list[str], dict[str, list[int]]]:
     """The tables that run on some of ``scenes``, why the others are skipped, and for each run key
     (``SCENE/NAME``, in table order, then row order) the tables that show it."""
@@ -681,7 +696,7 @@ def _table_runs(
     skipped: list[str] = []
     uses: dict[str, list[int]] = {}
     for number in numbers:
-        table = get_table(number).for_scenes(scenes)
+        table = get_table(number).for_scenes(scenes).for_attacks(attacks)
         keys = table.run_keys(scenes)
         if not keys:
             skipped.append(f"Table {number} skipped: it runs on {', '.join(table.scenes)}, not in --scenes")
@@ -1155,6 +1170,7 @@ def run_bench(
     scene_options: dict[str, Any] | None = None,
     executor: ExecutorOptions | None = None,
     defend: bool = False,
+    attacks: Sequence[str] = ATTACKS,
 ) -> Plan | dict[str, Any]:
     """``stealth-ns bench attack``: the plan (``dry_run``) or the results document.
 
@@ -1165,7 +1181,9 @@ def run_bench(
     if defend:
         tables = (*parse_tables(tables), 1)
     # without --dry-run this first plan only checks the input: the views are ranked below
-    plan = bench_plan(output, tables, scenes, method, iterations, seed, scene_options, rank_views=dry_run)
+    plan = bench_plan(
+        output, tables, scenes, method, iterations, seed, scene_options, rank_views=dry_run, attacks=attacks
+    )
     plan.executor, plan.defend = options, defend
     for line in plan.skipped_scenes:
         print(line, flush=True)
@@ -1206,7 +1224,18 @@ def _run_plan(
             )
             print(f"FAILED {scene}: {failed[scene]}", file=sys.stderr, flush=True)
     options, defend = plan.executor, plan.defend
-    plan = bench_plan(output, tables, scenes, method, plan.iterations, seed, scene_options, write_cache=True)
+    attacks = plan.attacks
+    plan = bench_plan(
+        output,
+        tables,
+        scenes,
+        method,
+        plan.iterations,
+        seed,
+        scene_options,
+        write_cache=True,
+        attacks=attacks,
+    )
     plan.executor, plan.defend = options, defend
     plan.scene_errors.update(failed)
     print(plan.describe(dry_run=False), flush=True)
