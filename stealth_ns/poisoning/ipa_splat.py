@@ -149,6 +149,9 @@ def _check_views(config: Any, attack: AttackConfig) -> None:
 
 def _attacker_trainer(config: Any) -> Any:
     """nerfstudio's Trainer for ``config``, set up (one-line errors of the pipeline as StealthNSError)."""
+    from nerfstudio.scripts.train import _set_random_seed
+
+    _set_random_seed(config.machine.seed)  # as ns-train does: the same seed gives the same poisoned images
     try:
         config.save_config()
         trainer = config.setup(local_rank=0, world_size=1)
