@@ -94,6 +94,8 @@ class StealthSplatModelConfig(SplatfactoModelConfig):
 
 
 POISON_TAG = "poison"
+#: The per-Gaussian parameters the optimizers train (every entry of ``gauss_params`` but the poison tag).
+TRAINABLE = ("means", "scales", "quats", "features_dc", "features_rest", "opacities")
 #: Camera-space z (scene units) below which a Gaussian is not drawn (splatfacto's near plane).
 NEAR_PLANE = 0.01
 """Name of the per-Gaussian tag (1.0 = poison, 0.0 = scene) kept in ``gauss_params``: gsplat's
@@ -314,6 +316,27 @@ class StealthSplatModel(SplatfactoModel):
             yield
         finally:
             self.keep_mask = previous
+
+    @contextlib.contextmanager
+    def trial_parameters(self) -> Iterator[tuple[dict[str, torch.nn.Parameter], dict[str, Tensor]]]:
+        """``(params, start)``: the :data:`TRAINABLE` parameters, free to be optimised inside the block
+        (gradients on, eval mode: no densification statistics, full-resolution renders), and a copy of
+        their values at its start; they are put back to those exactly after, with their
+        ``requires_grad`` and the train/eval mode."""
+        params = {k: self.gauss_params[k] for k in TRAINABLE}
+        saved = {k: p.detach().clone() for k, p in params.items()}
+        was_training, requires = self.training, {k: p.requires_grad for k, p in params.items()}
+        self.eval()
+        try:
+            for p in params.values():
+                p.requires_grad_(True)
+            yield params, saved
+        finally:
+            with torch.no_grad():
+                for k, p in params.items():
+                    p.copy_(saved[k])
+                    p.requires_grad_(requires[k])
+            self.train(was_training)
 
     @torch.no_grad()
     def append_gaussians(

@@ -198,15 +198,22 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     assert [g.label for g in get_table(2).groups][-3:] == ["fox Easy", "fox Median", "fox Hard"]
 
 
-def test_kde_views_go_on_the_command_line(tmp_path, monkeypatch):
+def ranked_forward_scene(out: Path, monkeypatch) -> SimpleNamespace:
+    """OUTPUT with a forward scene on disk whose KDE views are fixed (no rendering, no ranking):
+    ``scene`` (its folder) and ``ranking`` (easy / median / hard)."""
     from stealth_ns.evaluation import difficulty
 
-    scene = experiments.scene_dir(tmp_path, "forward", 0)
+    scene = experiments.scene_dir(out, "forward", 0)
     scene.mkdir(parents=True)
     (scene / "transforms.json").write_text("{}")
     (scene / "scene.json").write_text(json.dumps({"preset": "forward", "seed": 0}))
     ranking = SimpleNamespace(easy="frame_00003.png", median="frame_00020.png", hard="frame_00041.png")
     monkeypatch.setattr(difficulty, "rank_scene_views", lambda data: ranking)
+    return SimpleNamespace(scene=scene, ranking=ranking)
+
+
+def test_kde_views_go_on_the_command_line(tmp_path, monkeypatch):
+    ranking = ranked_forward_scene(tmp_path, monkeypatch).ranking
     plan = bench_plan(tmp_path, tables=["1", "2"], scenes=["forward"], iterations=30)
     assert plan.views["forward"] == {
         "easy": "frame_00003.png",

@@ -151,10 +151,10 @@ def test_ipa_config_validate_names_the_bad_option(field, value, option):
 
 
 def test_ipa_config_budgets_cover_every_parameter_group():
-    from stealth_ns.poisoning.ipa_splat import PARAMETER_GROUPS
+    from stealth_ns.model import TRAINABLE
 
     budgets = IPAConfig(budget_features=0.3).budgets()
-    assert set(budgets) == set(PARAMETER_GROUPS)
+    assert set(budgets) == set(TRAINABLE)
     assert budgets["features_dc"] == budgets["features_rest"] == 0.3
 
 

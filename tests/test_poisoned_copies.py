@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shlex
 import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 import tyro
+from test_bench_attack import ranked_forward_scene
 
 from stealth_ns.cli import COMMANDS
 from stealth_ns.errors import StealthNSError
@@ -165,7 +167,10 @@ def test_make_runs_the_command_and_writes_the_marker_only_on_success(tmp_path, m
 
     monkeypatch.setattr(PoisonJob, "command", lambda self: [sys.executable, "-c", "print('ok')"])
     job.make()
-    assert json.loads(job.marker.read_text()) == job.identity() and job.log.read_text() == "ok\n"
+    command = shlex.join([sys.executable, "-c", "print('ok')"])
+    assert (
+        json.loads(job.marker.read_text()) == job.identity() and job.log.read_text() == f"$ {command}\nok\n"
+    )
 
 
 def test_make_reports_the_last_line_when_no_line_says_error(tmp_path, monkeypatch):
@@ -212,16 +217,9 @@ def test_ensure_copies_makes_what_is_not_ready_and_reports_failures(tmp_path, mo
 @pytest.fixture
 def ranked_forward(tmp_path, monkeypatch):
     """OUTPUT with a forward scene on disk whose KDE views are fixed (no rendering, no ranking)."""
-    from stealth_ns.evaluation import difficulty
-
     out = tmp_path / "out"
-    scene = experiments.scene_dir(out, "forward", 0)
-    scene.mkdir(parents=True)
-    (scene / "transforms.json").write_text("{}")
-    (scene / "scene.json").write_text(json.dumps({"preset": "forward", "seed": 0}))
-    ranking = SimpleNamespace(easy="frame_00003.png", median="frame_00020.png", hard="frame_00041.png")
-    monkeypatch.setattr(difficulty, "rank_scene_views", lambda data: ranking)
-    return SimpleNamespace(out=out, scene=scene, ranking=ranking)
+    ranked = ranked_forward_scene(out, monkeypatch)
+    return SimpleNamespace(out=out, scene=ranked.scene, ranking=ranked.ranking)
 
 
 def test_dry_run_plans_the_poisoned_copies(ranked_forward, capsys):

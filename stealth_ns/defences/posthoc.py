@@ -28,8 +28,8 @@ import torch
 from stealth_ns.defences import scores
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.defences.detection import prune_mask_threshold
-from stealth_ns.defences.signals import TRAINABLE, FineTune, gradient_energy_matrix, view_weight_matrix
-from stealth_ns.model import StealthSplatModel
+from stealth_ns.defences.signals import FineTune, gradient_energy_matrix, view_weight_matrix
+from stealth_ns.model import TRAINABLE, StealthSplatModel
 
 DESCRIPTIONS: dict[str, str] = {
     "zscore": "robust z-score of position, scale, volume and opacity (statCull)",

@@ -22,9 +22,6 @@ from torch import Tensor
 
 from stealth_ns.model import POISON_TAG, StealthSplatModel
 
-#: The trainable per-Gaussian parameters (every ``gauss_params`` entry but the poison tag).
-TRAINABLE = ("means", "scales", "quats", "features_dc", "features_rest", "opacities")
-
 
 def _progress(total: int, desc: str):
     from tqdm import tqdm
@@ -82,18 +79,12 @@ def gradient_energy_matrix(
     afterwards. ``images[v]`` is view v's training image as the datamanager caches it
     (``[H, W, C]``, uint8 or float); ``learning_rates`` gives each of :data:`TRAINABLE` its Adam rate.
     """
-    params = {k: model.gauss_params[k] for k in TRAINABLE}
-    saved = {k: p.detach().clone() for k, p in params.items()}
-    was_training, requires = model.training, {k: p.requires_grad for k, p in params.items()}
     energy = np.zeros((model.num_points, len(cameras)), dtype=np.float64)
-    optimizer = torch.optim.Adam(
-        [{"params": [p], "lr": learning_rates[k] * tune.lr_scale} for k, p in params.items()], eps=1e-15
-    )
     order = np.random.default_rng(tune.seed)
-    model.eval()
-    try:
-        for p in params.values():
-            p.requires_grad_(True)
+    with model.trial_parameters() as (params, _):
+        optimizer = torch.optim.Adam(
+            [{"params": [p], "lr": learning_rates[k] * tune.lr_scale} for k, p in params.items()], eps=1e-15
+        )
         with _progress(tune.epochs * len(cameras), "training dynamics") as bar:
             for _ in range(tune.epochs):
                 for v in order.permutation(len(cameras)):
@@ -103,12 +94,6 @@ def gradient_energy_matrix(
                     energy[:, v] += _row_energy(params)
                     optimizer.step()
                     bar.update(1)
-    finally:
-        with torch.no_grad():
-            for k, p in params.items():
-                p.copy_(saved[k])
-                p.requires_grad_(requires[k])
-        model.train(was_training)
     return energy.astype(np.float32)
 
 

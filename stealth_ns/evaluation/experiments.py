@@ -371,16 +371,22 @@ def _scene_spec(item: str, optional: bool) -> tuple[str, str | None, bool]:
     return name, folder, optional
 
 
-def method_iterations(method: str) -> int:
-    """The default ``max_num_iterations`` of a stealth-ns method (from its nerfstudio entry point)."""
+def method_config(method: str) -> Any:
+    """The ``TrainerConfig`` a stealth-ns method is registered with (its nerfstudio entry point; shared:
+    copy it before changing it)."""
     from importlib.metadata import entry_points
 
     if method not in METHODS:
         raise StealthNSError(f"unknown method {method!r}; methods: {', '.join(METHODS)}")
     for ep in entry_points(group="nerfstudio.method_configs"):
         if ep.name == method:
-            return int(ep.load().config.max_num_iterations)
+            return ep.load().config
     raise StealthNSError(f"method {method!r} is not registered with nerfstudio (is stealth-ns installed?)")
+
+
+def method_iterations(method: str) -> int:
+    """The default ``max_num_iterations`` of a stealth-ns method."""
+    return int(method_config(method).max_num_iterations)
 
 
 # ------------------------------------------------------------------------------ the plan

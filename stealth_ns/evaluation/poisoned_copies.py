@@ -12,11 +12,12 @@ from __future__ import annotations
 import hashlib
 import json
 import shlex
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from stealth_ns.errors import StealthNSError
+from stealth_ns.evaluation import runs
 from stealth_ns.evaluation.runs import bin_path
 from stealth_ns.json_io import write_json_atomic
 from stealth_ns.poisoning.dataset_copy import RECORD_DIR, RECORD_FILE
@@ -108,14 +109,15 @@ class PoisonJob:
         return shlex.join(["stealth-ns", *self.command()[1:]])
 
     def make(self) -> None:
-        """Make the copy (output to :attr:`log`); RuntimeError with the command's last error line."""
-        self.output.parent.mkdir(parents=True, exist_ok=True)
-        with self.log.open("w") as log:
-            done = subprocess.run(self.command(), stdout=log, stderr=subprocess.STDOUT, check=False)
-        if done.returncode != 0:
-            lines = [ln for ln in self.log.read_text(errors="replace").splitlines() if ln.strip()]
+        """Make the copy (output to :attr:`log`, as the bench's trainings: :func:`runs.run_command`);
+        RuntimeError with the command's last error line."""
+        try:
+            runs.run_command(self.command(), self.log, stream=False)
+        except StealthNSError:
+            output = self.log.read_text(errors="replace").splitlines()[1:]  # after the "$ command" line
+            lines = [ln for ln in output if ln.strip()]
             last = next((ln for ln in reversed(lines) if "error" in ln.lower()), lines[-1] if lines else "")
-            raise RuntimeError(f"{COMMANDS[self.kind]} failed ({last.strip()}; log: {self.log})")
+            raise RuntimeError(f"{COMMANDS[self.kind]} failed ({last.strip()}; log: {self.log})") from None
         write_json_atomic(self.marker, self.identity())
 
 

@@ -24,7 +24,7 @@ import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
@@ -33,6 +33,9 @@ from stealth_ns.attack.record import RECORD_FILE, AttackRecord
 from stealth_ns.errors import StealthNSError
 from stealth_ns.image_io import read_image, save_image
 from stealth_ns.json_io import write_json_atomic
+
+if TYPE_CHECKING:
+    from stealth_ns.evaluation.experiments import SceneSource
 
 DatasetFormat = Literal["nerfstudio-data", "colmap"]
 #: The attack record of a poisoned copy, relative to the copy (as ``<run>/attack`` of a run).
@@ -45,19 +48,34 @@ _SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 
 @dataclass(frozen=True)
 class SourceDataset:
-    """A dataset folder to copy: its format, and for COLMAP where its model is."""
+    """A dataset folder to copy, as the bench inspects dataset folders (``inspect_folder``)."""
 
-    root: Path  # absolute
-    format: DatasetFormat
-    colmap_path: str | None = None  # COLMAP model folder, relative to root
-    has_seed_points: bool = True
+    scene: SceneSource
+
+    @property
+    def root(self) -> Path:
+        """The folder, absolute."""
+        assert self.scene.path is not None
+        return self.scene.path
+
+    @property
+    def format(self) -> DatasetFormat:
+        assert self.scene.format in ("nerfstudio-data", "colmap")
+        return self.scene.format
+
+    @property
+    def colmap_path(self) -> str | None:
+        """The COLMAP model folder, relative to :attr:`root`."""
+        return self.scene.colmap_path
+
+    @property
+    def has_seed_points(self) -> bool:
+        return self.scene.seed_points != "triangulated"
 
     @property
     def dataparser(self) -> tuple[str, tuple[str, ...]]:
         """nerfstudio's dataparser name and its options after ``--data`` for this dataset."""
-        if self.format == "colmap":
-            return "colmap", ("--colmap-path", str(self.colmap_path), "--downscale-factor", "1")
-        return "nerfstudio-data", ()
+        return self.scene.dataparser
 
 
 def open_source(data: Path) -> SourceDataset:
@@ -70,8 +88,7 @@ def open_source(data: Path) -> SourceDataset:
             f"{data} is a Blender dataset: poisoned copies are written for nerfstudio-data and COLMAP "
             f"datasets; convert it with `stealth-ns seed-points --data {data} --output DIR` and poison DIR"
         )
-    assert src.path is not None and src.format is not None
-    return SourceDataset(src.path, src.format, src.colmap_path, src.seed_points != "triangulated")
+    return SourceDataset(src)
 
 
 def is_poisoned_copy(folder: Path) -> bool:

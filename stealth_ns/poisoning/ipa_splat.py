@@ -48,9 +48,6 @@ from stealth_ns.poisoning.dataset_copy import (
 from stealth_ns.poisoning.ipa import clip_parameter_change, linf_project, nearest_views, views_within_angle
 from stealth_ns.poisoning.setup import trainer_config
 
-#: The Gaussian parameter groups the attack epochs change (the trainer's optimizer groups).
-PARAMETER_GROUPS = ("means", "scales", "quats", "features_dc", "features_rest", "opacities")
-
 
 def _rgb(pipeline: Any, index: int) -> Tensor:
     """[H, W, 3] float render of training camera ``index`` at full resolution (gradients on)."""
@@ -90,17 +87,11 @@ class IPAEpochs:
     def __call__(self, step: int) -> None:
         """One attack epoch after training step ``step``; the model is left exactly as it was."""
         t0 = time.perf_counter()
-        model = self.pipeline.model
-        params = {k: model.gauss_params[k] for k in PARAMETER_GROUPS}
-        saved = {k: p.detach().clone() for k, p in params.items()}
         optimizers = self.trainer.optimizers.optimizers
-        rates = {k: float(optimizers[k].param_groups[0]["lr"]) for k in PARAMETER_GROUPS}
-        adam = torch.optim.Adam(
-            [{"params": [params[k]], "lr": rates[k]} for k in PARAMETER_GROUPS], eps=1e-15
-        )
-        was_training, losses, change = model.training, [], {}
-        model.eval()  # no densification statistics, full-resolution renders
-        try:
+        losses, change = [], {}
+        with self.pipeline.model.trial_parameters() as (params, saved):
+            rates = {k: float(optimizers[k].param_groups[0]["lr"]) for k in params}
+            adam = torch.optim.Adam([{"params": [p], "lr": rates[k]} for k, p in params.items()], eps=1e-15)
             for _ in range(self.cfg.attack_steps):
                 adam.zero_grad(set_to_none=True)
                 with torch.enable_grad():
@@ -115,12 +106,6 @@ class IPAEpochs:
                     self.poisoned[i] = linf_project(
                         _rgb(self.pipeline, i).clamp(0, 1), self.clean[i], eps
                     ).cpu()
-        finally:
-            with torch.no_grad():
-                for k, p in params.items():
-                    p.copy_(saved[k])
-                    p.grad = None
-            model.train(was_training)
         self._hand_over()
         self.epochs.append(
             {"step": step, "loss_first": losses[0], "loss_last": losses[-1], "largest_change": change,

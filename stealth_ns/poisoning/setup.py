@@ -15,10 +15,8 @@ from typing import Any
 import torch
 
 from stealth_ns.attack.config import AttackConfig
-from stealth_ns.errors import StealthNSError, StealthNSExit
+from stealth_ns.errors import StealthNSExit
 from stealth_ns.poisoning.dataset_copy import SourceDataset
-
-METHODS = ("stealth-splat-lite", "stealth-splat")
 
 
 def trainer_config(
@@ -27,13 +25,9 @@ def trainer_config(
     """The ``TrainerConfig`` of ``METHOD`` on ``source`` with ``attack`` (``--vis tensorboard``)."""
     from nerfstudio.data.dataparsers.colmap_dataparser import ColmapDataParserConfig
 
-    if method == "stealth-splat-lite":
-        from stealth_ns.method_configs.stealth_splat_lite import stealth_splat_lite as spec
-    elif method == "stealth-splat":
-        from stealth_ns.method_configs.stealth_splat import stealth_splat as spec
-    else:
-        raise StealthNSError(f"unknown method {method!r}; methods: {', '.join(METHODS)}")
-    config = copy.deepcopy(spec.config)
+    from stealth_ns.evaluation.experiments import method_config
+
+    config = copy.deepcopy(method_config(method))
     datamanager = config.pipeline.datamanager
     if source.format == "colmap":
         datamanager.dataparser = ColmapDataParserConfig(
