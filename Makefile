@@ -5,7 +5,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.stealth-ns-installed
 
-.PHONY: env demo test test-fast lint clean-env
+.PHONY: env demo test test-fast test-gpu lint clean-env
 
 env: $(STAMP)
 
@@ -21,6 +21,10 @@ test: env
 
 test-fast: env
 	$(PY) -m pytest -m "not slow"
+
+# the CUDA path (gsplat against the compiled CPU backend, a poisoned run on the GPU); skipped without CUDA
+test-gpu: env
+	$(PY) -m pytest -m cuda
 
 lint: env
 	$(VENV)/bin/ruff check .

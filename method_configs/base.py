@@ -10,6 +10,7 @@ from nerfstudio.engine.trainer import TrainerConfig
 
 from stealth_ns.datamanager import StealthDataManagerConfig
 from stealth_ns.model import StealthSplatModelConfig
+from stealth_ns.optimizers import FusedAdamOptimizerConfig
 from stealth_ns.pipeline import StealthPipelineConfig
 from stealth_ns.schedulers import FloatExponentialDecaySchedulerConfig
 
@@ -23,17 +24,21 @@ def default_device_type() -> str:
 
 
 def gaussian_optimizers(max_steps: int, camera_warmup: int) -> dict:
-    """splatfacto's per-parameter-group Adam settings; the means' LR decays over ``max_steps``."""
+    """splatfacto's per-parameter-group Adam settings; the means' LR decays over ``max_steps``. The
+    Gaussians' groups use the fused kernel (:mod:`stealth_ns.optimizers`)."""
     return {
         "means": {
-            "optimizer": AdamOptimizerConfig(lr=1.6e-4, eps=1e-15),
+            "optimizer": FusedAdamOptimizerConfig(lr=1.6e-4, eps=1e-15),
             "scheduler": FloatExponentialDecaySchedulerConfig(lr_final=1.6e-6, max_steps=max_steps),
         },
-        "features_dc": {"optimizer": AdamOptimizerConfig(lr=0.0025, eps=1e-15), "scheduler": None},
-        "features_rest": {"optimizer": AdamOptimizerConfig(lr=0.0025 / 20, eps=1e-15), "scheduler": None},
-        "opacities": {"optimizer": AdamOptimizerConfig(lr=0.05, eps=1e-15), "scheduler": None},
-        "scales": {"optimizer": AdamOptimizerConfig(lr=0.005, eps=1e-15), "scheduler": None},
-        "quats": {"optimizer": AdamOptimizerConfig(lr=0.001, eps=1e-15), "scheduler": None},
+        "features_dc": {"optimizer": FusedAdamOptimizerConfig(lr=0.0025, eps=1e-15), "scheduler": None},
+        "features_rest": {
+            "optimizer": FusedAdamOptimizerConfig(lr=0.0025 / 20, eps=1e-15),
+            "scheduler": None,
+        },
+        "opacities": {"optimizer": FusedAdamOptimizerConfig(lr=0.05, eps=1e-15), "scheduler": None},
+        "scales": {"optimizer": FusedAdamOptimizerConfig(lr=0.005, eps=1e-15), "scheduler": None},
+        "quats": {"optimizer": FusedAdamOptimizerConfig(lr=0.001, eps=1e-15), "scheduler": None},
         "camera_opt": {
             "optimizer": AdamOptimizerConfig(lr=1e-4, eps=1e-15),
             "scheduler": FloatExponentialDecaySchedulerConfig(

@@ -94,6 +94,44 @@ class BenchRaster:
 
 
 @dataclass
+class BenchTrain:
+    """Time training steps of the default orbit run (or --data), split into phases."""
+
+    data: Path | None = None
+    """A nerfstudio-data or COLMAP dataset (default: the generated orbit scene, seed --seed)."""
+    method: Literal["stealth-splat-lite", "stealth-splat"] = "stealth-splat-lite"
+    """The method, trained with its default attack as ns-train runs it."""
+    warmup: int = 1000
+    """Steps trained before timing starts (1000: the orbit run has grown to ~80k of its ~90k
+    Gaussians and uses all SH degrees; densification and opacity resets still happen)."""
+    steps: int = 200
+    """Steps timed after the warm-up."""
+    seed: int = 0
+    threads: int | None = None
+    """Torch/OpenMP threads (default: torch's default, the number of cores)."""
+    json: Path | None = None
+    """Also write the figures to this JSON file (keys median_step_ms, phases_ms, ...)."""
+
+    def main(self) -> None:
+        from stealth_ns.evaluation.train_bench import run_train_benchmark
+
+        if self.json is not None and not self.json.parent.exists():
+            raise StealthNSError(f"cannot write {self.json}: folder {self.json.parent} does not exist")
+        if self.data is not None and not self.data.exists():
+            raise StealthNSError(f"--data {self.data} does not exist")
+        result = run_train_benchmark(
+            data=self.data,
+            method=self.method,
+            warmup=self.warmup,
+            steps=self.steps,
+            seed=self.seed,
+            threads=self.threads,
+            json_path=self.json,
+        )
+        print(result.table())
+
+
+@dataclass
 class Report:
     """Compare a poisoned run with a clean run of the same scene: report.json, report.html, PNGs."""
 
@@ -381,6 +419,7 @@ COMMANDS: dict[str, type] = {
     "report": Report,
     "bench raster": BenchRaster,
     "bench attack": BenchAttack,
+    "bench train": BenchTrain,
     "rank-views": RankViews,
     "seed-points": SeedPoints,
     "check-data": CheckData,

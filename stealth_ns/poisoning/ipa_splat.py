@@ -32,7 +32,6 @@ from torch import Tensor
 
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.record import AttackRecord, PoisonView
-from stealth_ns.errors import StealthNSExit
 from stealth_ns.fingerprint import dataset_fingerprint
 from stealth_ns.image_io import to_uint8
 from stealth_ns.poisoning.config import IPAConfig
@@ -46,7 +45,7 @@ from stealth_ns.poisoning.dataset_copy import (
     write_record,
 )
 from stealth_ns.poisoning.ipa import clip_parameter_change, linf_project, nearest_views, views_within_angle
-from stealth_ns.poisoning.setup import trainer_config
+from stealth_ns.poisoning.setup import setup_trainer, trainer_config
 
 
 def _rgb(pipeline: Any, index: int) -> Tensor:
@@ -132,20 +131,6 @@ def _check_views(config: Any, attack: AttackConfig) -> None:
         resolve_views(list(attack.views), dataset_image_names(Path(parser.data), files))
 
 
-def _attacker_trainer(config: Any) -> Any:
-    """nerfstudio's Trainer for ``config``, set up (one-line errors of the pipeline as StealthNSError)."""
-    from nerfstudio.scripts.train import _set_random_seed
-
-    _set_random_seed(config.machine.seed)  # as ns-train does: the same seed gives the same poisoned images
-    try:
-        config.save_config()
-        trainer = config.setup(local_rank=0, world_size=1)
-        trainer.setup()
-    except StealthNSExit as err:
-        raise err.error from None
-    return trainer
-
-
 def ipa_poison(
     data: Path,
     output: Path,
@@ -173,7 +158,7 @@ def ipa_poison(
         config.max_num_iterations = int(iterations)
     config.output_dir = copy.root / "attack"
     config.experiment_name, config.method_name, config.timestamp = "attacker", method, "run"
-    trainer = _attacker_trainer(config)
+    trainer = setup_trainer(config)  # seeded as ns-train: the same seed gives the same poisoned images
     pipeline = trainer.pipeline
     views = build_poison_views(dataclasses.replace(attack, enabled=True), pipeline.datamanager)
     epochs = IPAEpochs(pipeline, trainer, views, cfg)

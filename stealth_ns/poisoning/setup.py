@@ -56,3 +56,18 @@ def setup_pipeline(config: Any) -> Any:
         return config.pipeline.setup(device=device(), test_mode="val", world_size=1, local_rank=0)
     except StealthNSExit as err:
         raise err.error from None
+
+
+def setup_trainer(config: Any) -> Any:
+    """nerfstudio's Trainer for ``config``, seeded and set up as ``ns-train`` does (its config.yml
+    saved); the pipeline's one-line errors come out as :class:`StealthNSError`."""
+    from nerfstudio.scripts.train import _set_random_seed
+
+    _set_random_seed(config.machine.seed)
+    try:
+        config.save_config()
+        trainer = config.setup(local_rank=0, world_size=1)
+        trainer.setup()
+    except StealthNSExit as err:
+        raise err.error from None
+    return trainer

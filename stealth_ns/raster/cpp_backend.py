@@ -31,6 +31,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from stealth_ns.step_timing import phase
+
 __all__ = [
     "EXTENSION_NAME",
     "RasterizeToPixelsCPU",
@@ -39,11 +41,15 @@ __all__ = [
     "compile_seconds",
     "isect_tiles_cpp",
     "load_extension",
+    "project_gaussians_cpp",
     "rasterize_to_pixels_cpp",
+    "sh_colors_cpp",
 ]
 
 EXTENSION_NAME = "stealth_ns_raster_cpu"
-_SOURCE = Path(__file__).resolve().parent / "csrc" / "rasterize_cpu.cpp"
+_CSRC = Path(__file__).resolve().parent / "csrc"
+_SOURCES = (_CSRC / "rasterize_cpu.cpp", _CSRC / "project_cpu.cpp")
+_HEADERS = (_CSRC / "project_cpu.h",)
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that
 # decide which (pixel, Gaussian) pairs pass the alpha >= 1/255 test, so forward and backward could
 # disagree.  -ffp-contract=off for the same reason (no FMA contraction that may differ between the
@@ -83,7 +89,8 @@ def _cpu_signature() -> str:
 
 def _cache_key(cflags: list[str] | None = None) -> str:
     h = hashlib.sha256()
-    h.update(_SOURCE.read_bytes())
+    for path in (*_SOURCES, *_HEADERS):
+        h.update(path.read_bytes())
     h.update(" ".join((cflags or _CFLAGS) + _LDFLAGS).encode())
     h.update(torch.__version__.encode())
     h.update(sys.version.encode())
@@ -130,7 +137,7 @@ def load_extension() -> Any | None:
                 _module = cpp_extension.load(
                     # distinct names: a failed import of one variant must not shadow the other
                     name=EXTENSION_NAME if extra else f"{EXTENSION_NAME}_generic",
-                    sources=[str(_SOURCE)],
+                    sources=[str(path) for path in _SOURCES],
                     extra_cflags=cflags,
                     extra_ldflags=list(_LDFLAGS),
                     build_directory=str(build_dir),
@@ -218,24 +225,25 @@ class RasterizeToPixelsCPU(torch.autograd.Function):
         v_render_colors = v_render_colors.to(torch.float32).contiguous()
         v_render_alphas = v_render_alphas.to(torch.float32).contiguous()
         ext = _require()
-        v_means2d, v_conics, v_colors, v_opacities = ext.rasterize_bwd(
-            means2d,
-            conics,
-            colors,
-            opacities,
-            backgrounds,
-            ctx.width,
-            ctx.height,
-            ctx.tile_size,
-            isect_offsets,
-            flatten_ids,
-            t_final,
-            last_ids,
-            v_render_colors,
-            v_render_alphas,
-            True,
-            DEFAULT_BWD_MODE,
-        )
+        with phase("backward: rasterize"):
+            v_means2d, v_conics, v_colors, v_opacities = ext.rasterize_bwd(
+                means2d,
+                conics,
+                colors,
+                opacities,
+                backgrounds,
+                ctx.width,
+                ctx.height,
+                ctx.tile_size,
+                isect_offsets,
+                flatten_ids,
+                t_final,
+                last_ids,
+                v_render_colors,
+                v_render_alphas,
+                True,
+                DEFAULT_BWD_MODE,
+            )
         v_backgrounds = None
         if backgrounds is not None and ctx.needs_input_grad[4]:
             v_backgrounds = (v_render_colors * t_final[..., None]).sum(dim=(1, 2))
@@ -332,3 +340,108 @@ def isect_tiles_cpp(
         int(tile_height),
     )
     return offsets, flatten_ids
+
+
+class ProjectGaussiansCPU(torch.autograd.Function):
+    """Autograd wrapper around ``project_fwd`` / ``project_bwd``: :func:`projection.quat_scale_to_covar`
+    followed by :func:`projection.project_gaussians` in one pass (no gradient for the cameras)."""
+
+    @staticmethod
+    def forward(
+        ctx, means, quats, scales, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip
+    ):
+        radii, means2d, depths, conics = _require().project_fwd(
+            means, quats, scales, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip
+        )
+        ctx.save_for_backward(means, quats, scales, viewmats, Ks, radii)
+        ctx.size = (width, height, eps2d)
+        ctx.mark_non_differentiable(radii)
+        return radii, means2d, depths, conics
+
+    @staticmethod
+    def backward(ctx, _v_radii, v_means2d, v_depths, v_conics):
+        means, quats, scales, viewmats, Ks, radii = ctx.saved_tensors
+        with phase("backward: projection+SH"):
+            v_means, v_quats, v_scales = _require().project_bwd(
+                means,
+                quats,
+                scales,
+                viewmats,
+                Ks,
+                *ctx.size,
+                radii,
+                _grad_or_zeros(v_means2d, (*radii.shape, 2)),
+                _grad_or_zeros(v_depths, radii.shape),
+                _grad_or_zeros(v_conics, (*radii.shape, 3)),
+            )
+        return v_means, v_quats, v_scales, None, None, None, None, None, None, None, None
+
+
+class SphericalHarmonicsCPU(torch.autograd.Function):
+    """Autograd wrapper around ``sh_fwd`` / ``sh_bwd``: per-camera colours
+    ``max(SH(degree, means - camera centre, coeffs) + 0.5, 0)``, 0 where the radius is 0."""
+
+    @staticmethod
+    def forward(ctx, means, viewmats, coeffs, degree, radii):
+        colors = _require().sh_fwd(means, viewmats, coeffs, degree, radii)
+        ctx.save_for_backward(means, viewmats, coeffs, radii)
+        ctx.degree = degree
+        return colors
+
+    @staticmethod
+    def backward(ctx, v_colors):
+        means, viewmats, coeffs, radii = ctx.saved_tensors
+        with phase("backward: projection+SH"):
+            v_coeffs, v_means = _require().sh_bwd(means, viewmats, coeffs, ctx.degree, radii, _f32(v_colors))
+        return v_means, None, v_coeffs, None, None
+
+
+def _grad_or_zeros(grad: Tensor | None, shape: tuple[int, ...]) -> Tensor:
+    return torch.zeros(shape, dtype=torch.float32) if grad is None else _f32(grad)
+
+
+def project_gaussians_cpp(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    viewmats: Tensor,
+    Ks: Tensor,
+    width: int,
+    height: int,
+    eps2d: float = 0.3,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    radius_clip: float = 0.0,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """:func:`projection.project_gaussians` of ``quat_scale_to_covar(quats, scales)``, compiled.
+
+    Args:
+        means: [N, 3]; quats: [N, 4] (w, x, y, z, any norm); scales: [N, 3] (not log).
+        viewmats: [C, 4, 4] world-to-camera (OpenCV); Ks: [C, 3, 3]; no gradient flows to either.
+
+    Returns:
+        radii [C, N] int32, means2d [C, N, 2], depths [C, N], conics [C, N, 3], as the reference; the
+        backward gives Gaussians of radius 0 no gradient (the rasterizer never reads them).
+    """
+    return ProjectGaussiansCPU.apply(
+        _f32(means),
+        _f32(quats),
+        _f32(scales),
+        _f32(viewmats.detach()),
+        _f32(Ks.detach()),
+        int(width),
+        int(height),
+        float(eps2d),
+        float(near_plane),
+        float(far_plane),
+        float(radius_clip),
+    )
+
+
+def sh_colors_cpp(means: Tensor, viewmats: Tensor, coeffs: Tensor, degree: int, radii: Tensor) -> Tensor:
+    """Per-camera colours ``[C, N, 3]`` of SH coefficients ``coeffs`` ``[N, K, 3]`` (the reference:
+    ``clamp_min(spherical_harmonics(degree, means - camera centre, coeffs) + 0.5, 0)``), compiled; 0 for
+    Gaussians of radius 0 in ``radii`` ``[C, N]``."""
+    return SphericalHarmonicsCPU.apply(
+        _f32(means), _f32(viewmats.detach()), _f32(coeffs), int(degree), _i32(radii.detach())
+    )

@@ -24,6 +24,7 @@ from torch import Tensor
 from stealth_ns.raster.projection import project_gaussians, quat_scale_to_covar, spherical_harmonics
 from stealth_ns.raster.tiles import isect_tiles, tile_grid
 from stealth_ns.raster.torch_backend import rasterize_to_pixels_torch
+from stealth_ns.step_timing import phase
 
 Backend = Literal["auto", "gsplat", "cpp", "torch"]
 RenderMode = Literal["RGB", "D", "ED", "RGB+D", "RGB+ED"]
@@ -183,30 +184,42 @@ def _rasterize_cpu(
     """:func:`rasterization` on the CPU backend ``name`` (``"cpp"`` or ``"torch"``): projection, the
     per-camera features, tile intersection, rasterize-to-pixels; the info dict gsplat's strategy reads."""
     C = viewmats.shape[0]
-    covars = quat_scale_to_covar(quats, scales)
-    radii, means2d, depths, conics = project_gaussians(
-        means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip
-    )
-    opac = opacities[None, :].expand(C, -1)
-    feats, backgrounds = _camera_features(
-        means, colors, viewmats, depths, sh_degree, backgrounds, render_mode
-    )
+    # the compiled projection and SH have no gradient for the cameras (a camera optimizer needs the reference)
+    fused = name == "cpp" and not (viewmats.requires_grad or Ks.requires_grad)
+    with phase("projection+SH"):
+        if fused:
+            from stealth_ns.raster.cpp_backend import project_gaussians_cpp
+
+            radii, means2d, depths, conics = project_gaussians_cpp(
+                means, quats, scales, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip
+            )
+        else:
+            covars = quat_scale_to_covar(quats, scales)
+            radii, means2d, depths, conics = project_gaussians(
+                means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip
+            )
+        opac = opacities[None, :].expand(C, -1)
+        feats, backgrounds = _camera_features(
+            means, colors, viewmats, depths, sh_degree, backgrounds, render_mode, radii if fused else None
+        )
 
     tile_width, tile_height = tile_grid(width, height, tile_size)
     isect, raster = _cpu_kernels(name)
-    isect_offsets, flatten_ids = isect(means2d, radii, depths, tile_size, tile_width, tile_height)
-    render_colors, render_alphas = raster(
-        means2d,
-        conics,
-        feats.contiguous(),
-        opac.contiguous(),
-        width,
-        height,
-        tile_size,
-        isect_offsets,
-        flatten_ids,
-        backgrounds,
-    )
+    with phase("tile sort"):
+        isect_offsets, flatten_ids = isect(means2d, radii, depths, tile_size, tile_width, tile_height)
+    with phase("rasterize forward"):
+        render_colors, render_alphas = raster(
+            means2d,
+            conics,
+            feats.contiguous(),
+            opac.contiguous(),
+            width,
+            height,
+            tile_size,
+            isect_offsets,
+            flatten_ids,
+            backgrounds,
+        )
     if render_mode in ("ED", "RGB+ED"):
         expected = render_colors[..., -1:] / render_alphas.clamp(min=1e-10)
         render_colors = torch.cat([render_colors[..., :-1], expected], dim=-1)
@@ -240,13 +253,19 @@ def _camera_features(
     sh_degree: int | None,
     backgrounds: Tensor | None,
     render_mode: RenderMode,
+    compiled_radii: Tensor | None = None,
 ) -> tuple[Tensor, Tensor | None]:
     """What each camera blends per Gaussian, ``[C, N, D']``, and the matching backgrounds ``[C, D']``:
     the colours (SH evaluated towards the camera when ``sh_degree`` is set, + 0.5, clamped at 0),
     with the depth appended for ``RGB+D`` / ``RGB+ED``, or the depth alone for ``D`` / ``ED``
-    (background 0)."""
+    (background 0). With ``compiled_radii`` ``[C, N]`` the SH colours come from the compiled kernel
+    (0 for Gaussians of radius 0, which are not drawn)."""
     C = viewmats.shape[0]
-    if sh_degree is not None:
+    if sh_degree is not None and compiled_radii is not None and colors.dim() == 3:
+        from stealth_ns.raster.cpp_backend import sh_colors_cpp
+
+        feats = sh_colors_cpp(means, viewmats, colors, sh_degree, compiled_radii)
+    elif sh_degree is not None:
         campos = torch.linalg.inv(viewmats)[:, :3, 3]
         dirs = means[None, :, :] - campos[:, None, :]
         coeffs = colors if colors.dim() == 4 else colors[None].expand(C, -1, -1, -1)

@@ -47,6 +47,8 @@
 
 #include <torch/extension.h>
 
+#include "project_cpu.h"
+
 #include <ATen/Parallel.h>
 #include <omp.h>
 
@@ -936,4 +938,14 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("mode") = 0, py::arg("n_threads") = 0);
     m.def("isect_tiles", &isect_tiles, py::arg("means2d"), py::arg("radii"), py::arg("depths"),
           py::arg("tile_size"), py::arg("tile_width"), py::arg("tile_height"), py::arg("n_threads") = 0);
+    m.def("project_fwd", &stealth_ns::project_fwd, py::arg("means"), py::arg("quats"), py::arg("scales"),
+          py::arg("viewmats"), py::arg("Ks"), py::arg("width"), py::arg("height"), py::arg("eps2d"),
+          py::arg("near_plane"), py::arg("far_plane"), py::arg("radius_clip"));
+    m.def("project_bwd", &stealth_ns::project_bwd, py::arg("means"), py::arg("quats"), py::arg("scales"),
+          py::arg("viewmats"), py::arg("Ks"), py::arg("width"), py::arg("height"), py::arg("eps2d"),
+          py::arg("radii"), py::arg("v_means2d"), py::arg("v_depths"), py::arg("v_conics"));
+    m.def("sh_fwd", &stealth_ns::sh_fwd, py::arg("means"), py::arg("viewmats"), py::arg("coeffs"),
+          py::arg("degree"), py::arg("radii"));
+    m.def("sh_bwd", &stealth_ns::sh_bwd, py::arg("means"), py::arg("viewmats"), py::arg("coeffs"),
+          py::arg("degree"), py::arg("radii"), py::arg("v_colors"));
 }

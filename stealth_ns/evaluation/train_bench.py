@@ -1,0 +1,304 @@
+"""``stealth-ns bench train``: where the time of a training step goes.
+
+Trains a method (default ``stealth-splat-lite`` with the attack on, as ``ns-train`` runs it) on a
+scene (default: the generated ``orbit`` scene, seed 0) in this process with nerfstudio's own
+``Trainer``, and times every step after ``warmup`` steps, split into phases:
+
+==========================  ===========================================================
+data                        the datamanager's ``next_train`` (image, attack target, noise)
+projection+SH               EWA projection and SH colours (forward)
+tile sort                   tile intersection and depth sort
+rasterize forward           the rasterize-to-pixels kernel (forward)
+forward: other              the rest of the model's ``get_outputs`` (activations, background)
+loss                        the model's loss and metrics dicts (L1 + SSIM, PSNR)
+pipeline: other             the rest of the pipeline's ``get_train_loss_dict``
+backward: rasterize         the rasterize-to-pixels backward kernel
+backward: projection+SH     the compiled projection and SH backward kernels
+backward: other             the rest of ``loss.backward()`` (loss and SSIM, activations)
+optimizer                   the optimizers' and schedulers' steps
+densification               gsplat's strategy before and after the backward pass
+callbacks/logging           everything else of the step: the other training callbacks (the
+                            attack's), nerfstudio's writer, evaluation images, checkpoints
+==========================  ===========================================================
+
+The phases add up to the step's wall-clock time (``step``). Each figure is the median over the
+timed steps (the mean is kept beside it: evaluation and checkpoint steps are rare but long).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import resource
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from stealth_ns.errors import StealthNSError
+from stealth_ns.step_timing import TIMER, StepTimer
+
+#: Leaf phases in the order printed; they add up to the step.
+PHASES = (
+    "data",
+    "projection+SH",
+    "tile sort",
+    "rasterize forward",
+    "forward: other",
+    "loss",
+    "pipeline: other",
+    "backward: rasterize",
+    "backward: projection+SH",
+    "backward: other",
+    "optimizer",
+    "densification",
+    "callbacks/logging",
+)
+
+
+def leaf_phases(raw: dict[str, float]) -> dict[str, float]:
+    """One step's raw timings (seconds; nested: ``forward`` holds the renderer's phases) -> the
+    :data:`PHASES`, which do not overlap and add up to ``raw["step"]``."""
+
+    def get(name: str) -> float:
+        return raw.get(name, 0.0)
+
+    backward = get("train iteration") - get("loss dict") - get("optimizer")
+    return {
+        "data": get("data"),
+        "projection+SH": get("projection+SH"),
+        "tile sort": get("tile sort"),
+        "rasterize forward": get("rasterize forward"),
+        "forward: other": get("forward")
+        - get("projection+SH")
+        - get("tile sort")
+        - get("rasterize forward")
+        - get("densification: pre"),
+        "loss": get("loss"),
+        "pipeline: other": get("loss dict") - get("data") - get("forward") - get("loss"),
+        "backward: rasterize": get("backward: rasterize"),
+        "backward: projection+SH": get("backward: projection+SH"),
+        "backward: other": backward - get("backward: rasterize") - get("backward: projection+SH"),
+        "optimizer": get("optimizer"),
+        "densification": get("densification: pre") + get("densification: post"),
+        "callbacks/logging": get("step") - get("train iteration") - get("densification: post"),
+    }
+
+
+@dataclass
+class TrainBenchResult:
+    """What ``stealth-ns bench train`` measured (milliseconds unless named otherwise)."""
+
+    scene: str
+    method: str
+    backend: str
+    threads: int
+    warmup: int
+    steps: int
+    median_step_ms: float
+    mean_step_ms: float
+    phases_ms: dict[str, float]
+    """Median over the timed steps of each phase."""
+    phases_mean_ms: dict[str, float]
+    gaussians: int
+    """Median number of Gaussians over the timed steps."""
+    pairs: int
+    """Median number of (Gaussian, tile) pairs the training render sorted and blended."""
+    peak_rss_mb: float
+    """Peak resident memory of this process (setup and training), MiB."""
+    rss_growth_mb: float
+    """Resident memory at the end of the timed steps minus at their start, MiB."""
+    seconds: float
+    step_ms: list[float] = field(repr=False)
+
+    def table(self) -> str:
+        lines = [
+            f"stealth-ns bench train: {self.method} on {self.scene}, backend {self.backend}, "
+            f"{self.threads} thread(s); {self.steps} steps timed after {self.warmup}",
+            f"  median step {self.median_step_ms:.1f} ms (mean {self.mean_step_ms:.1f} ms); "
+            f"{self.gaussians} Gaussians, {self.pairs} tile pairs",
+            f"  {'phase':<25}{'median ms':>11}{'mean ms':>10}{'share':>8}",
+        ]
+        total = sum(self.phases_mean_ms.values()) or 1.0
+        for name in PHASES:
+            mean = self.phases_mean_ms[name]
+            lines.append(f"  {name:<25}{self.phases_ms[name]:>11.2f}{mean:>10.2f}{mean / total:>8.1%}")
+        lines.append(
+            f"  peak RSS {self.peak_rss_mb:.0f} MiB; "
+            f"RSS change over the timed steps {self.rss_growth_mb:+.0f} MiB"
+        )
+        return "\n".join(lines)
+
+
+def _rss_mb() -> float:
+    """Current resident memory of this process, MiB (Linux /proc; 0 where it cannot be read)."""
+    try:
+        pages = int(Path("/proc/self/statm").read_text().split()[1])
+    except (OSError, ValueError, IndexError):
+        return 0.0
+    import os
+
+    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+
+
+def _instrument(trainer: Any, timer: StepTimer) -> None:
+    """Time the phases of ``trainer``'s steps into ``timer`` (instance attributes wrap the methods)."""
+    pipeline, model = trainer.pipeline, trainer.pipeline.model
+    datamanager, strategy, optimizers = pipeline.datamanager, model.strategy, trainer.optimizers
+    datamanager.next_train = timer.wrap("data", datamanager.next_train)
+    model.get_loss_dict = timer.wrap("loss", model.get_loss_dict)
+    model.get_metrics_dict = timer.wrap("loss", model.get_metrics_dict)
+    pipeline.get_train_loss_dict = timer.wrap("loss dict", pipeline.get_train_loss_dict)
+    strategy.step_pre_backward = timer.wrap("densification: pre", strategy.step_pre_backward)
+    strategy.step_post_backward = timer.wrap("densification: post", strategy.step_post_backward)
+    optimizers.optimizer_scaler_step_some = timer.wrap("optimizer", optimizers.optimizer_scaler_step_some)
+    optimizers.scheduler_step_all = timer.wrap("optimizer", optimizers.scheduler_step_all)
+    trainer.train_iteration = timer.wrap("train iteration", trainer.train_iteration)
+    trainer.eval_iteration = timer.excluded(trainer.eval_iteration)  # its renders are not training phases
+
+    get_outputs = model.get_outputs
+
+    def forward(camera: Any) -> Any:
+        with timer.phase("forward"):
+            outputs = get_outputs(camera)
+        if model.training:
+            ids = getattr(model, "info", {}).get("flatten_ids")
+            timer.current["gaussians"] = float(model.num_points)
+            timer.current["pairs"] = float(ids.numel()) if ids is not None else 0.0
+        return outputs
+
+    model.get_outputs = forward
+
+
+def _boundary_callback(timer: StepTimer, warmup: int, steps: int, bar: Any) -> Callable[[int], None]:
+    """A before-iteration callback that closes the previous step (its wall-clock time as ``step``) and
+    switches the timer on for the ``steps`` steps after ``warmup``."""
+    last = [time.perf_counter()]
+    rss = {}
+
+    def mark(step: int) -> None:
+        now = time.perf_counter()
+        if timer.active:
+            timer.current["step"] = now - last[0]
+            timer.end_step()
+        timer.current = {}
+        timer.active = warmup <= step < warmup + steps
+        if step == warmup:
+            rss["start"] = _rss_mb()
+        if step == warmup + steps:
+            rss["end"] = _rss_mb()
+        last[0] = time.perf_counter()
+        bar.update(1)
+
+    mark.rss = rss  # type: ignore[attr-defined]
+    return mark
+
+
+def _median(values: list[float]) -> float:
+    return float(statistics.median(values)) if values else 0.0
+
+
+def summarise(steps: list[dict[str, float]]) -> tuple[dict[str, float], dict[str, float], list[float]]:
+    """Per-step raw timings -> (median ms per phase, mean ms per phase, step ms)."""
+    leaves = [leaf_phases(s) for s in steps]
+    median = {name: 1000 * _median([leaf[name] for leaf in leaves]) for name in PHASES}
+    mean = {name: 1000 * statistics.fmean([leaf[name] for leaf in leaves]) for name in PHASES}
+    return median, mean, [1000 * s["step"] for s in steps]
+
+
+def _bench_config(data: Path, output: Path, method: str, seed: int, iterations: int) -> Any:
+    from stealth_ns.attack.config import AttackConfig
+    from stealth_ns.poisoning.dataset_copy import open_source
+    from stealth_ns.poisoning.setup import trainer_config
+
+    config = trainer_config(open_source(data), AttackConfig(), method, seed)
+    config.max_num_iterations = iterations
+    config.output_dir = output
+    config.experiment_name, config.timestamp = "bench-train", "run"
+    config.logging.local_writer.enable = False  # the progress bar instead of nerfstudio's table
+    return config
+
+
+def run_train_benchmark(
+    data: Path | None = None,
+    method: str = "stealth-splat-lite",
+    warmup: int = 1000,
+    steps: int = 200,
+    seed: int = 0,
+    threads: int | None = None,
+    json_path: Path | None = None,
+) -> TrainBenchResult:
+    """Train ``method`` on ``data`` (None: the generated orbit scene) and time ``steps`` steps after
+    ``warmup``; prints progress, returns (and writes as JSON) the measurements."""
+    from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackLocation
+    from tqdm import tqdm
+
+    if warmup < 0 or steps < 1:
+        raise StealthNSError(f"--warmup must be >= 0 and --steps >= 1 (got {warmup} and {steps})")
+    if threads is not None:
+        if threads < 1:
+            raise StealthNSError(f"--threads must be at least 1, got {threads}")
+        torch.set_num_threads(threads)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="stealth-ns-bench-train-") as tmp:
+        if data is None:
+            from stealth_ns.scenes import make_scene
+
+            data = Path(tmp) / "orbit"
+            make_scene(preset="orbit", output=data, seed=seed)
+            scene = f"generated orbit (seed {seed})"
+        else:
+            scene = str(data)
+        from stealth_ns.poisoning.setup import setup_trainer
+
+        config = _bench_config(data, Path(tmp) / "runs", method, seed, warmup + steps + 1)
+        trainer = setup_trainer(config)
+        _instrument(trainer, TIMER)
+        TIMER.steps = []
+        with tqdm(total=config.max_num_iterations, desc="bench train", unit="step") as bar:
+            mark = _boundary_callback(TIMER, warmup, steps, bar)
+            trainer.callbacks.insert(
+                0, TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], mark)
+            )
+            try:
+                trainer.train()
+            finally:
+                TIMER.active = False
+        model = trainer.pipeline.model
+        backend = model.rasterizer_backend
+    timed = TIMER.steps[:steps]
+    if len(timed) < steps:
+        raise StealthNSError(f"bench train: only {len(timed)} of {steps} steps were timed")
+    median, mean, step_ms = summarise(timed)
+    rss = mark.rss  # type: ignore[attr-defined]
+    result = TrainBenchResult(
+        scene=scene,
+        method=method,
+        backend=backend,
+        threads=torch.get_num_threads(),
+        warmup=warmup,
+        steps=steps,
+        median_step_ms=_median(step_ms),
+        mean_step_ms=statistics.fmean(step_ms),
+        phases_ms=median,
+        phases_mean_ms=mean,
+        gaussians=int(_median([s.get("gaussians", 0.0) for s in timed])),
+        pairs=int(_median([s.get("pairs", 0.0) for s in timed])),
+        peak_rss_mb=_peak_rss_mb(),
+        rss_growth_mb=rss.get("end", 0.0) - rss.get("start", 0.0),
+        seconds=time.perf_counter() - t0,
+        step_ms=step_ms,
+    )
+    if json_path is not None:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps(dataclasses.asdict(result), indent=2) + "\n", encoding="utf-8")
+    return result

@@ -1,0 +1,459 @@
+// Projection (EWA splatting) and SH colour of 3D Gaussians on the CPU, forward and backward.
+//
+// The readable reference with the same contract is stealth_ns/raster/projection.py (pure torch,
+// differentiated by autograd); the math is gsplat 1.4.0's (fully_fused_projection with a pinhole
+// camera, spherical_harmonics):
+//   covariance  R(q/|q|) diag(s)^2 R^T, rotated into the camera: Sc = W S W^T;
+//   the Jacobian of the pinhole projection evaluated at the point clamped to 1.3x the field of view;
+//   cov2d = J Sc J^T + eps2d I; conic = inverse of cov2d (upper triangle), its determinant clamped
+//   at 1e-10; radius = ceil(3 sqrt(largest eigenvalue)), 0 outside [near, far] or off screen.
+//   colour = max(sum_k Y_k(d) c_k + 0.5, 0) with d the normalised direction camera centre -> mean.
+// As in gsplat, a Gaussian with radius 0 in a camera gets colour 0 and no gradient from it (the
+// rasterizer never reads it).  Each Gaussian's backward sums its cameras in a fixed order, one
+// Gaussian per task: deterministic, whatever the thread count.
+
+#include "project_cpu.h"
+
+#include <ATen/Parallel.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace stealth_ns {
+namespace {
+
+constexpr int64_t kGrain = 512;
+
+void check_f32(const torch::Tensor &t, const char *name) {
+    TORCH_CHECK(t.device().is_cpu(), name, " must be a CPU tensor");
+    TORCH_CHECK(t.scalar_type() == torch::kFloat32, name, " must be float32");
+    TORCH_CHECK(t.is_contiguous(), name, " must be contiguous");
+}
+
+struct Camera {
+    float R[3][3];
+    float t[3];
+    float fx, fy, cx, cy;
+    float lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg;
+    float centre[3];  // -R^T t
+};
+
+std::vector<Camera> cameras(const torch::Tensor &viewmats, const torch::Tensor &Ks, int64_t width, int64_t height) {
+    check_f32(viewmats, "viewmats");
+    TORCH_CHECK(viewmats.dim() == 3 && viewmats.size(1) == 4 && viewmats.size(2) == 4, "viewmats must be [C, 4, 4]");
+    const int64_t C = viewmats.size(0);
+    const float *v = viewmats.data_ptr<float>();
+    const float *k = nullptr;
+    if (Ks.defined() && Ks.numel() > 0) {
+        check_f32(Ks, "Ks");
+        TORCH_CHECK(Ks.dim() == 3 && Ks.size(0) == C && Ks.size(1) == 3 && Ks.size(2) == 3, "Ks must be [C, 3, 3]");
+        k = Ks.data_ptr<float>();
+    }
+    std::vector<Camera> out(C);
+    for (int64_t c = 0; c < C; ++c) {
+        Camera &cam = out[c];
+        const float *m = v + 16 * c;
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) cam.R[i][j] = m[4 * i + j];
+            cam.t[i] = m[4 * i + 3];
+        }
+        for (int j = 0; j < 3; ++j)
+            cam.centre[j] = -(cam.R[0][j] * cam.t[0] + cam.R[1][j] * cam.t[1] + cam.R[2][j] * cam.t[2]);
+        if (k) {
+            const float *kk = k + 9 * c;
+            cam.fx = kk[0], cam.fy = kk[4], cam.cx = kk[2], cam.cy = kk[5];
+            const float tan_fovx = 0.5f * (float)width / cam.fx, tan_fovy = 0.5f * (float)height / cam.fy;
+            cam.lim_x_pos = ((float)width - cam.cx) / cam.fx + 0.3f * tan_fovx;
+            cam.lim_x_neg = cam.cx / cam.fx + 0.3f * tan_fovx;
+            cam.lim_y_pos = ((float)height - cam.cy) / cam.fy + 0.3f * tan_fovy;
+            cam.lim_y_neg = cam.cy / cam.fy + 0.3f * tan_fovy;
+        }
+    }
+    return out;
+}
+
+// Rotation matrix of q / max(|q|, 1e-12) (torch's F.normalize); qn, inv_norm kept for the backward.
+inline void quat_to_rot(const float *q, float qn[4], float &inv_norm, float R[3][3]) {
+    const float norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    inv_norm = 1.0f / std::max(norm, 1e-12f);
+    for (int i = 0; i < 4; ++i) qn[i] = q[i] * inv_norm;
+    const float w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+    R[0][0] = 1 - 2 * (y * y + z * z), R[0][1] = 2 * (x * y - w * z), R[0][2] = 2 * (x * z + w * y);
+    R[1][0] = 2 * (x * y + w * z), R[1][1] = 1 - 2 * (x * x + z * z), R[1][2] = 2 * (y * z - w * x);
+    R[2][0] = 2 * (x * z - w * y), R[2][1] = 2 * (y * z + w * x), R[2][2] = 1 - 2 * (x * x + y * y);
+}
+
+// Everything the projection of one Gaussian into one camera computes (the backward recomputes it).
+struct Projected {
+    float p[3];       // camera-space mean
+    float Sc[3][3];   // camera-space covariance
+    float J[2][3];    // projection Jacobian (at the clamped point)
+    float ux, uy;     // clamped tx/tz, ty/tz
+    bool x_free, y_free;  // the clamp did not bind
+    float a, b, c, det;
+    bool det_free;    // the determinant was not clamped
+    float mean2d[2];
+    int radius;
+};
+
+inline void project_one(const Camera &cam, const float *mean, const float S[3][3], int64_t width, int64_t height,
+                        float eps2d, float near_plane, float far_plane, float radius_clip, Projected &o) {
+    for (int i = 0; i < 3; ++i)
+        o.p[i] = cam.R[i][0] * mean[0] + cam.R[i][1] * mean[1] + cam.R[i][2] * mean[2] + cam.t[i];
+    float RS[3][3];  // R S
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) RS[i][j] = cam.R[i][0] * S[0][j] + cam.R[i][1] * S[1][j] + cam.R[i][2] * S[2][j];
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j)
+            o.Sc[i][j] = RS[i][0] * cam.R[j][0] + RS[i][1] * cam.R[j][1] + RS[i][2] * cam.R[j][2];
+    const float tx = o.p[0], ty = o.p[1], tz = o.p[2];
+    const float rx = tx / tz, ry = ty / tz;
+    o.ux = std::min(std::max(rx, -cam.lim_x_neg), cam.lim_x_pos);
+    o.uy = std::min(std::max(ry, -cam.lim_y_neg), cam.lim_y_pos);
+    o.x_free = rx >= -cam.lim_x_neg && rx <= cam.lim_x_pos;
+    o.y_free = ry >= -cam.lim_y_neg && ry <= cam.lim_y_pos;
+    const float txc = tz * o.ux, tyc = tz * o.uy;
+    o.J[0][0] = cam.fx / tz, o.J[0][1] = 0.0f, o.J[0][2] = -cam.fx * txc / (tz * tz);
+    o.J[1][0] = 0.0f, o.J[1][1] = cam.fy / tz, o.J[1][2] = -cam.fy * tyc / (tz * tz);
+    float JS[2][3];
+    for (int i = 0; i < 2; ++i)
+        for (int j = 0; j < 3; ++j)
+            JS[i][j] = o.J[i][0] * o.Sc[0][j] + o.J[i][1] * o.Sc[1][j] + o.J[i][2] * o.Sc[2][j];
+    float cov[2][2];
+    for (int i = 0; i < 2; ++i)
+        for (int j = 0; j < 2; ++j) cov[i][j] = JS[i][0] * o.J[j][0] + JS[i][1] * o.J[j][1] + JS[i][2] * o.J[j][2];
+    o.mean2d[0] = cam.fx * tx / tz + cam.cx;
+    o.mean2d[1] = cam.fy * ty / tz + cam.cy;
+    o.a = cov[0][0] + eps2d;
+    o.b = 0.5f * (cov[0][1] + cov[1][0]);
+    o.c = cov[1][1] + eps2d;
+    const float det_raw = o.a * o.c - o.b * o.b;
+    o.det_free = det_raw >= 1e-10f;
+    o.det = o.det_free ? det_raw : 1e-10f;
+    const float half_trace = 0.5f * (o.a + o.c);
+    const float lam_max = half_trace + std::sqrt(std::max(half_trace * half_trace - o.det, 0.01f));
+    const float radius = std::ceil(3.0f * std::sqrt(lam_max));
+    const bool valid = o.det > 0 && tz > near_plane && tz < far_plane && radius > radius_clip;
+    const bool inside = o.mean2d[0] + radius > 0 && o.mean2d[0] - radius < (float)width &&
+                        o.mean2d[1] + radius > 0 && o.mean2d[1] - radius < (float)height;
+    o.radius = (valid && inside) ? (int)radius : 0;
+}
+
+// Covariance S = M M^T with M = R(q) diag(s).
+inline void covariance(const float *quat, const float *scale, float qn[4], float &inv_norm, float Rq[3][3],
+                       float M[3][3], float S[3][3]) {
+    quat_to_rot(quat, qn, inv_norm, Rq);
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) M[i][j] = Rq[i][j] * scale[j];
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) S[i][j] = M[i][0] * M[j][0] + M[i][1] * M[j][1] + M[i][2] * M[j][2];
+}
+
+// Adds the gradient of one camera's outputs to v_p (camera-space mean) and v_Sc (camera covariance).
+inline void project_one_bwd(const Camera &cam, const Projected &o, const float *v_mean2d, float v_depth,
+                            const float *v_conic, float v_p[3], float v_Sc[3][3]) {
+    const float a = o.a, b = o.b, c = o.c, det = o.det;
+    // conic = (c, -b, a) / det
+    const float v_det = o.det_free ? -(v_conic[0] * c - v_conic[1] * b + v_conic[2] * a) / (det * det) : 0.0f;
+    const float v_a = v_conic[2] / det + v_det * c;
+    const float v_b = -v_conic[1] / det - 2.0f * b * v_det;
+    const float v_c = v_conic[0] / det + v_det * a;
+    const float V[2][2] = {{v_a, 0.5f * v_b}, {0.5f * v_b, v_c}};  // gradient of cov2d (symmetric)
+    // cov2d = J Sc J^T:  v_Sc += J^T V J,  v_J = 2 V J Sc
+    float VJ[2][3];
+    for (int i = 0; i < 2; ++i)
+        for (int j = 0; j < 3; ++j) VJ[i][j] = V[i][0] * o.J[0][j] + V[i][1] * o.J[1][j];
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) v_Sc[i][j] += o.J[0][i] * VJ[0][j] + o.J[1][i] * VJ[1][j];
+    float v_J[2][3];
+    for (int i = 0; i < 2; ++i)
+        for (int j = 0; j < 3; ++j)
+            v_J[i][j] = 2.0f * (VJ[i][0] * o.Sc[0][j] + VJ[i][1] * o.Sc[1][j] + VJ[i][2] * o.Sc[2][j]);
+    const float tx = o.p[0], ty = o.p[1], tz = o.p[2];
+    const float tz2 = tz * tz, tz3 = tz2 * tz;
+    // J00 = fx/tz, J11 = fy/tz, J02 = -fx txc/tz^2, J12 = -fy tyc/tz^2 with txc = tz * clamp(tx/tz)
+    const float txc = tz * o.ux, tyc = tz * o.uy;
+    const float dtxc_dtx = o.x_free ? 1.0f : 0.0f, dtyc_dty = o.y_free ? 1.0f : 0.0f;
+    const float dtxc_dtz = o.ux - (o.x_free ? tx / tz : 0.0f);
+    const float dtyc_dtz = o.uy - (o.y_free ? ty / tz : 0.0f);
+    float gx = 0.0f, gy = 0.0f, gz = v_depth;
+    gz += -cam.fx / tz2 * v_J[0][0] - cam.fy / tz2 * v_J[1][1];
+    gx += -cam.fx / tz2 * dtxc_dtx * v_J[0][2];
+    gz += (-cam.fx * dtxc_dtz / tz2 + 2.0f * cam.fx * txc / tz3) * v_J[0][2];
+    gy += -cam.fy / tz2 * dtyc_dty * v_J[1][2];
+    gz += (-cam.fy * dtyc_dtz / tz2 + 2.0f * cam.fy * tyc / tz3) * v_J[1][2];
+    // mean2d = (fx tx/tz + cx, fy ty/tz + cy)
+    gx += cam.fx / tz * v_mean2d[0];
+    gy += cam.fy / tz * v_mean2d[1];
+    gz += -cam.fx * tx / tz2 * v_mean2d[0] - cam.fy * ty / tz2 * v_mean2d[1];
+    v_p[0] += gx, v_p[1] += gy, v_p[2] += gz;
+}
+
+// Gradient of R(q / |q|) (G = dL/dR) -> dL/dq.
+inline void quat_bwd(const float qn[4], float inv_norm, const float G[3][3], float *v_q) {
+    const float w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+    float v[4];
+    v[0] = 2 * (-z * G[0][1] + y * G[0][2] + z * G[1][0] - x * G[1][2] - y * G[2][0] + x * G[2][1]);
+    v[1] = 2 * (y * G[0][1] + z * G[0][2] + y * G[1][0] - 2 * x * G[1][1] - w * G[1][2] + z * G[2][0] + w * G[2][1] -
+                2 * x * G[2][2]);
+    v[2] = 2 * (-2 * y * G[0][0] + x * G[0][1] + w * G[0][2] + x * G[1][0] + z * G[1][2] - w * G[2][0] +
+                z * G[2][1] - 2 * y * G[2][2]);
+    v[3] = 2 * (-2 * z * G[0][0] - w * G[0][1] + x * G[0][2] + w * G[1][0] - 2 * z * G[1][1] + y * G[1][2] +
+                x * G[2][0] + y * G[2][1]);
+    const float dot = qn[0] * v[0] + qn[1] * v[1] + qn[2] * v[2] + qn[3] * v[3];
+    for (int i = 0; i < 4; ++i) v_q[i] = (v[i] - qn[i] * dot) * inv_norm;
+}
+
+// Real SH constants (degree 0..3), as gsplat and the 3DGS reference.
+constexpr float C0 = 0.28209479177387814f;
+constexpr float C1 = 0.4886025119029199f;
+constexpr float C2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.31539156525252005f, -1.0925484305920792f,
+                         0.5462742152960396f};
+constexpr float C3[7] = {-0.5900435899266435f, 2.890611442640554f, -0.4570457994644658f, 0.3731763325901154f,
+                         -0.4570457994644658f, 1.445305721320277f, -0.5900435899266435f};
+
+// Basis values Y_k(n) for k < (degree + 1)^2 and, when grad is not null, their gradients dY_k/dn.
+inline void sh_basis(int degree, float x, float y, float z, float *Y, float (*grad)[3]) {
+    Y[0] = C0;
+    if (grad) grad[0][0] = grad[0][1] = grad[0][2] = 0.0f;
+    if (degree < 1) return;
+    Y[1] = -C1 * y, Y[2] = C1 * z, Y[3] = -C1 * x;
+    if (grad) {
+        grad[1][0] = 0, grad[1][1] = -C1, grad[1][2] = 0;
+        grad[2][0] = 0, grad[2][1] = 0, grad[2][2] = C1;
+        grad[3][0] = -C1, grad[3][1] = 0, grad[3][2] = 0;
+    }
+    if (degree < 2) return;
+    const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+    Y[4] = C2[0] * xy, Y[5] = C2[1] * yz, Y[6] = C2[2] * (2.0f * zz - xx - yy), Y[7] = C2[3] * xz;
+    Y[8] = C2[4] * (xx - yy);
+    if (grad) {
+        grad[4][0] = C2[0] * y, grad[4][1] = C2[0] * x, grad[4][2] = 0;
+        grad[5][0] = 0, grad[5][1] = C2[1] * z, grad[5][2] = C2[1] * y;
+        grad[6][0] = -2 * C2[2] * x, grad[6][1] = -2 * C2[2] * y, grad[6][2] = 4 * C2[2] * z;
+        grad[7][0] = C2[3] * z, grad[7][1] = 0, grad[7][2] = C2[3] * x;
+        grad[8][0] = 2 * C2[4] * x, grad[8][1] = -2 * C2[4] * y, grad[8][2] = 0;
+    }
+    if (degree < 3) return;
+    Y[9] = C3[0] * y * (3 * xx - yy);
+    Y[10] = C3[1] * xy * z;
+    Y[11] = C3[2] * y * (4 * zz - xx - yy);
+    Y[12] = C3[3] * z * (2 * zz - 3 * xx - 3 * yy);
+    Y[13] = C3[4] * x * (4 * zz - xx - yy);
+    Y[14] = C3[5] * z * (xx - yy);
+    Y[15] = C3[6] * x * (xx - 3 * yy);
+    if (grad) {
+        grad[9][0] = C3[0] * 6 * xy, grad[9][1] = C3[0] * (3 * xx - 3 * yy), grad[9][2] = 0;
+        grad[10][0] = C3[1] * yz, grad[10][1] = C3[1] * xz, grad[10][2] = C3[1] * xy;
+        grad[11][0] = C3[2] * -2 * xy, grad[11][1] = C3[2] * (4 * zz - xx - 3 * yy), grad[11][2] = C3[2] * 8 * yz;
+        grad[12][0] = C3[3] * -6 * xz, grad[12][1] = C3[3] * -6 * yz, grad[12][2] = C3[3] * (6 * zz - 3 * xx - 3 * yy);
+        grad[13][0] = C3[4] * (4 * zz - 3 * xx - yy), grad[13][1] = C3[4] * -2 * xy, grad[13][2] = C3[4] * 8 * xz;
+        grad[14][0] = C3[5] * 2 * xz, grad[14][1] = C3[5] * -2 * yz, grad[14][2] = C3[5] * (xx - yy);
+        grad[15][0] = C3[6] * (3 * xx - 3 * yy), grad[15][1] = C3[6] * -6 * xy, grad[15][2] = 0;
+    }
+}
+
+struct ShInputs {
+    int64_t C, N, K;
+    int degree, k_used;
+};
+
+ShInputs check_sh(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &coeffs,
+                  int64_t degree, const torch::Tensor &radii) {
+    check_f32(means, "means");
+    check_f32(coeffs, "coeffs");
+    TORCH_CHECK(radii.device().is_cpu() && radii.scalar_type() == torch::kInt32 && radii.is_contiguous(),
+                "radii must be a contiguous CPU int32 tensor");
+    TORCH_CHECK(degree >= 0 && degree <= 3, "sh degree must be in 0..3");
+    const int64_t N = means.size(0), C = viewmats.size(0);
+    TORCH_CHECK(coeffs.dim() == 3 && coeffs.size(0) == N && coeffs.size(2) == 3, "coeffs must be [N, K, 3]");
+    const int k_used = (int)((degree + 1) * (degree + 1));
+    TORCH_CHECK(coeffs.size(1) >= k_used, "sh degree ", degree, " needs ", k_used, " coefficients");
+    TORCH_CHECK(radii.dim() == 2 && radii.size(0) == C && radii.size(1) == N, "radii must be [C, N]");
+    return {C, N, coeffs.size(1), (int)degree, k_used};
+}
+
+}  // namespace
+
+std::vector<torch::Tensor> project_fwd(const torch::Tensor &means, const torch::Tensor &quats,
+                                       const torch::Tensor &scales, const torch::Tensor &viewmats,
+                                       const torch::Tensor &Ks, int64_t width, int64_t height, double eps2d,
+                                       double near_plane, double far_plane, double radius_clip) {
+    check_f32(means, "means");
+    check_f32(quats, "quats");
+    check_f32(scales, "scales");
+    const int64_t N = means.size(0);
+    TORCH_CHECK(means.dim() == 2 && means.size(1) == 3, "means must be [N, 3]");
+    TORCH_CHECK(quats.dim() == 2 && quats.size(0) == N && quats.size(1) == 4, "quats must be [N, 4]");
+    TORCH_CHECK(scales.dim() == 2 && scales.size(0) == N && scales.size(1) == 3, "scales must be [N, 3]");
+    const std::vector<Camera> cams = cameras(viewmats, Ks, width, height);
+    const int64_t C = (int64_t)cams.size();
+    auto fopt = means.options();
+    auto radii = torch::empty({C, N}, fopt.dtype(torch::kInt32));
+    auto means2d = torch::empty({C, N, 2}, fopt);
+    auto depths = torch::empty({C, N}, fopt);
+    auto conics = torch::empty({C, N, 3}, fopt);
+    const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
+    int32_t *r_out = radii.data_ptr<int32_t>();
+    float *m2_out = means2d.data_ptr<float>(), *d_out = depths.data_ptr<float>(), *c_out = conics.data_ptr<float>();
+    at::parallel_for(0, N, kGrain, [&](int64_t begin, int64_t end) {
+        for (int64_t n = begin; n < end; ++n) {
+            float qn[4], inv_norm, Rq[3][3], M[3][3], S[3][3];
+            covariance(q + 4 * n, s + 3 * n, qn, inv_norm, Rq, M, S);
+            for (int64_t c = 0; c < C; ++c) {
+                Projected o;
+                project_one(cams[c], m + 3 * n, S, width, height, (float)eps2d, (float)near_plane,
+                            (float)far_plane, (float)radius_clip, o);
+                const int64_t i = c * N + n;
+                r_out[i] = o.radius;
+                m2_out[2 * i] = o.mean2d[0], m2_out[2 * i + 1] = o.mean2d[1];
+                d_out[i] = o.p[2];
+                c_out[3 * i] = o.c / o.det, c_out[3 * i + 1] = -o.b / o.det, c_out[3 * i + 2] = o.a / o.det;
+            }
+        }
+    });
+    return {radii, means2d, depths, conics};
+}
+
+std::vector<torch::Tensor> project_bwd(const torch::Tensor &means, const torch::Tensor &quats,
+                                       const torch::Tensor &scales, const torch::Tensor &viewmats,
+                                       const torch::Tensor &Ks, int64_t width, int64_t height, double eps2d,
+                                       const torch::Tensor &radii, const torch::Tensor &v_means2d,
+                                       const torch::Tensor &v_depths, const torch::Tensor &v_conics) {
+    check_f32(v_means2d, "v_means2d");
+    check_f32(v_depths, "v_depths");
+    check_f32(v_conics, "v_conics");
+    const std::vector<Camera> cams = cameras(viewmats, Ks, width, height);
+    const int64_t C = (int64_t)cams.size(), N = means.size(0);
+    TORCH_CHECK(radii.numel() == C * N && v_means2d.numel() == 2 * C * N && v_depths.numel() == C * N &&
+                    v_conics.numel() == 3 * C * N,
+                "gradients must be [C, N, ...]");
+    auto v_means = torch::zeros({N, 3}, means.options());
+    auto v_quats = torch::zeros({N, 4}, means.options());
+    auto v_scales = torch::zeros({N, 3}, means.options());
+    const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
+    const int32_t *r = radii.data_ptr<int32_t>();
+    const float *g2 = v_means2d.data_ptr<float>(), *gd = v_depths.data_ptr<float>(), *gc = v_conics.data_ptr<float>();
+    float *vm = v_means.data_ptr<float>(), *vq = v_quats.data_ptr<float>(), *vs = v_scales.data_ptr<float>();
+    at::parallel_for(0, N, kGrain, [&](int64_t begin, int64_t end) {
+        for (int64_t n = begin; n < end; ++n) {
+            bool any = false;
+            for (int64_t c = 0; c < C; ++c) any = any || r[c * N + n] > 0;
+            if (!any) continue;
+            float qn[4], inv_norm, Rq[3][3], M[3][3], S[3][3];
+            covariance(q + 4 * n, s + 3 * n, qn, inv_norm, Rq, M, S);
+            float v_S[3][3] = {{0}};
+            for (int64_t c = 0; c < C; ++c) {
+                const int64_t i = c * N + n;
+                if (r[i] <= 0) continue;
+                const Camera &cam = cams[c];
+                Projected o;
+                project_one(cam, m + 3 * n, S, width, height, (float)eps2d, 0.0f, 0.0f, 0.0f, o);
+                float v_p[3] = {0, 0, 0}, v_Sc[3][3] = {{0}};
+                project_one_bwd(cam, o, g2 + 2 * i, gd[i], gc + 3 * i, v_p, v_Sc);
+                // p = R mean + t; Sc = R S R^T
+                for (int j = 0; j < 3; ++j)
+                    vm[3 * n + j] += cam.R[0][j] * v_p[0] + cam.R[1][j] * v_p[1] + cam.R[2][j] * v_p[2];
+                float T[3][3];  // R^T v_Sc
+                for (int i2 = 0; i2 < 3; ++i2)
+                    for (int j = 0; j < 3; ++j)
+                        T[i2][j] = cam.R[0][i2] * v_Sc[0][j] + cam.R[1][i2] * v_Sc[1][j] + cam.R[2][i2] * v_Sc[2][j];
+                for (int i2 = 0; i2 < 3; ++i2)
+                    for (int j = 0; j < 3; ++j)
+                        v_S[i2][j] += T[i2][0] * cam.R[0][j] + T[i2][1] * cam.R[1][j] + T[i2][2] * cam.R[2][j];
+            }
+            // S = M M^T (v_S symmetric): v_M = (v_S + v_S^T) M; M = Rq diag(s)
+            float v_Rq[3][3];
+            for (int i2 = 0; i2 < 3; ++i2)
+                for (int j = 0; j < 3; ++j) {
+                    float v_M = 0.0f;
+                    for (int k = 0; k < 3; ++k) v_M += (v_S[i2][k] + v_S[k][i2]) * M[k][j];
+                    v_Rq[i2][j] = v_M * s[3 * n + j];
+                    vs[3 * n + j] += v_M * Rq[i2][j];
+                }
+            quat_bwd(qn, inv_norm, v_Rq, vq + 4 * n);
+        }
+    });
+    return {v_means, v_quats, v_scales};
+}
+
+torch::Tensor sh_fwd(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &coeffs,
+                     int64_t degree, const torch::Tensor &radii) {
+    const ShInputs in = check_sh(means, viewmats, coeffs, degree, radii);
+    const std::vector<Camera> cams = cameras(viewmats, torch::Tensor(), 0, 0);
+    auto colors = torch::zeros({in.C, in.N, 3}, means.options());
+    const float *m = means.data_ptr<float>(), *co = coeffs.data_ptr<float>();
+    const int32_t *r = radii.data_ptr<int32_t>();
+    float *out = colors.data_ptr<float>();
+    at::parallel_for(0, in.N, kGrain, [&](int64_t begin, int64_t end) {
+        float Y[16];
+        for (int64_t n = begin; n < end; ++n) {
+            const float *cn = co + n * in.K * 3;
+            for (int64_t c = 0; c < in.C; ++c) {
+                const int64_t i = c * in.N + n;
+                if (r[i] <= 0) continue;
+                float d[3];
+                for (int j = 0; j < 3; ++j) d[j] = m[3 * n + j] - cams[c].centre[j];
+                const float inv = 1.0f / std::max(std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 1e-12f);
+                sh_basis(in.degree, d[0] * inv, d[1] * inv, d[2] * inv, Y, nullptr);
+                for (int ch = 0; ch < 3; ++ch) {
+                    float v = 0.0f;
+                    for (int k = 0; k < in.k_used; ++k) v += Y[k] * cn[3 * k + ch];
+                    out[3 * i + ch] = std::max(v + 0.5f, 0.0f);
+                }
+            }
+        }
+    });
+    return colors;
+}
+
+std::vector<torch::Tensor> sh_bwd(const torch::Tensor &means, const torch::Tensor &viewmats,
+                                  const torch::Tensor &coeffs, int64_t degree, const torch::Tensor &radii,
+                                  const torch::Tensor &v_colors) {
+    const ShInputs in = check_sh(means, viewmats, coeffs, degree, radii);
+    check_f32(v_colors, "v_colors");
+    TORCH_CHECK(v_colors.numel() == in.C * in.N * 3, "v_colors must be [C, N, 3]");
+    const std::vector<Camera> cams = cameras(viewmats, torch::Tensor(), 0, 0);
+    auto v_coeffs = torch::zeros_like(coeffs);
+    auto v_means = torch::zeros({in.N, 3}, means.options());
+    const float *m = means.data_ptr<float>(), *co = coeffs.data_ptr<float>(), *g = v_colors.data_ptr<float>();
+    const int32_t *r = radii.data_ptr<int32_t>();
+    float *vc = v_coeffs.data_ptr<float>(), *vm = v_means.data_ptr<float>();
+    at::parallel_for(0, in.N, kGrain, [&](int64_t begin, int64_t end) {
+        float Y[16], dY[16][3];
+        for (int64_t n = begin; n < end; ++n) {
+            const float *cn = co + n * in.K * 3;
+            float *vcn = vc + n * in.K * 3;
+            for (int64_t c = 0; c < in.C; ++c) {
+                const int64_t i = c * in.N + n;
+                if (r[i] <= 0) continue;
+                float d[3];
+                for (int j = 0; j < 3; ++j) d[j] = m[3 * n + j] - cams[c].centre[j];
+                const float norm = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                const float inv = 1.0f / std::max(norm, 1e-12f);
+                const float u[3] = {d[0] * inv, d[1] * inv, d[2] * inv};
+                sh_basis(in.degree, u[0], u[1], u[2], Y, dY);
+                float gv[3];  // upstream gradient, zero where the clamp at 0 bound
+                for (int ch = 0; ch < 3; ++ch) {
+                    float v = 0.0f;
+                    for (int k = 0; k < in.k_used; ++k) v += Y[k] * cn[3 * k + ch];
+                    gv[ch] = (v + 0.5f >= 0.0f) ? g[3 * i + ch] : 0.0f;
+                }
+                float v_u[3] = {0, 0, 0};
+                for (int k = 0; k < in.k_used; ++k) {
+                    float dot = 0.0f;
+                    for (int ch = 0; ch < 3; ++ch) {
+                        vcn[3 * k + ch] += Y[k] * gv[ch];
+                        dot += cn[3 * k + ch] * gv[ch];
+                    }
+                    for (int j = 0; j < 3; ++j) v_u[j] += dot * dY[k][j];
+                }
+                const float along = u[0] * v_u[0] + u[1] * v_u[1] + u[2] * v_u[2];
+                for (int j = 0; j < 3; ++j) vm[3 * n + j] += (v_u[j] - u[j] * along) * inv;
+            }
+        }
+    });
+    return {v_coeffs, v_means};
+}
+
+}  // namespace stealth_ns

@@ -1,0 +1,92 @@
+"""``stealth-ns bench train``: the phase timer and the per-phase breakdown of training steps."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+from conftest import run_cli
+
+from stealth_ns.evaluation.train_bench import PHASES, leaf_phases, summarise
+from stealth_ns.step_timing import StepTimer, phase
+
+
+def test_phases_are_timed_only_while_active():
+    timer = StepTimer()
+    with timer.phase("a"):
+        time.sleep(0.001)
+    assert timer.current == {}
+    timer.active = True
+    for _ in range(2):
+        with timer.phase("a"):
+            time.sleep(0.002)
+    timed = timer.wrap("b", lambda x: x + 1)
+    assert timed(1) == 2
+    assert timer.current["a"] >= 0.004 and "b" in timer.current
+    untimed = timer.excluded(lambda: timer.phase("c").__enter__())
+    untimed()
+    assert "c" not in timer.current and timer.active
+    timer.end_step(gaussians=5)
+    assert timer.steps == [
+        {"a": pytest.approx(timer.steps[0]["a"]), "b": timer.steps[0]["b"], "gaussians": 5}
+    ]
+    assert timer.current == {}
+
+
+def test_module_phase_is_a_no_op_by_default():
+    with phase("anything"):
+        pass  # the process's timer is inactive outside a benchmark
+
+
+def test_leaf_phases_add_up_to_the_step():
+    raw = {
+        "step": 0.100,
+        "train iteration": 0.080,
+        "loss dict": 0.040,
+        "data": 0.002,
+        "forward": 0.030,
+        "projection+SH": 0.010,
+        "tile sort": 0.003,
+        "rasterize forward": 0.008,
+        "densification: pre": 0.001,
+        "loss": 0.005,
+        "optimizer": 0.010,
+        "backward: rasterize": 0.012,
+        "backward: projection+SH": 0.006,
+        "densification: post": 0.004,
+    }
+    leaves = leaf_phases(raw)
+    assert list(leaves) == list(PHASES)
+    assert sum(leaves.values()) == pytest.approx(raw["step"])
+    assert leaves["forward: other"] == pytest.approx(0.030 - 0.010 - 0.003 - 0.008 - 0.001)
+    assert leaves["backward: other"] == pytest.approx(0.080 - 0.040 - 0.010 - 0.012 - 0.006)
+    assert leaves["callbacks/logging"] == pytest.approx(0.100 - 0.080 - 0.004)
+    median, mean, steps = summarise([raw, {**raw, "step": 0.2}])
+    assert steps == pytest.approx([100.0, 200.0])
+    assert mean["callbacks/logging"] == pytest.approx(1000 * (0.016 + 0.116) / 2)
+
+
+def test_bench_train_cli_on_a_small_scene(tiny_orbit_scene, tmp_path):
+    path = tmp_path / "train.json"
+    proc = run_cli(
+        "stealth-ns", "bench", "train", "--data", str(tiny_orbit_scene), "--warmup", "3", "--steps", "4",
+        "--threads", "1", "--json", str(path),
+    )  # fmt: skip
+    assert "median step" in proc.stdout and "backward: rasterize" in proc.stdout
+    result = json.loads(path.read_text())
+    assert result["steps"] == 4 and len(result["step_ms"]) == 4 and result["threads"] == 1
+    assert set(result["phases_ms"]) == set(PHASES)
+    assert result["median_step_ms"] > 0 and result["phases_ms"]["rasterize forward"] > 0
+    assert result["phases_ms"]["backward: projection+SH"] > 0  # the compiled projection ran
+    assert result["gaussians"] > 0 and result["pairs"] > 0 and result["peak_rss_mb"] > 100
+    # every step's phases add up to its measured time
+    assert sum(result["phases_mean_ms"].values()) == pytest.approx(result["mean_step_ms"], rel=1e-6)
+
+
+def test_bench_train_bad_options(tmp_path):
+    proc = run_cli("stealth-ns", "bench", "train", "--steps", "0", check=False)
+    assert proc.returncode != 0 and "--steps" in proc.stderr + proc.stdout
+    assert "Traceback" not in proc.stderr
+    proc = run_cli("stealth-ns", "bench", "train", "--data", str(tmp_path / "missing"), check=False)
+    assert proc.returncode != 0 and "does not exist" in proc.stderr + proc.stdout
