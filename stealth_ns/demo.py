@@ -34,6 +34,8 @@ class DemoResult:
     """config.yml of the poisoned run."""
     report_dir: Path
     report: dict[str, Any]
+    peak_rss_mb: dict[str, float | None]
+    """Peak resident memory of each training process (clean, poisoned), MiB (None: reused)."""
     seconds: dict[str, float]
     """Measured wall-clock seconds of this invocation: scene, clean, poisoned, report (0 = reused);
     the two trainings overlap."""
@@ -48,8 +50,8 @@ class DemoResult:
             "",
             "stealth-ns demo",
             f"  scene:          {self.scene}",
-            f"  clean run:      {self.clean}  ({_took(s['clean'])})",
-            f"  poisoned run:   {self.poisoned}  ({_took(s['poisoned'])})",
+            f"  clean run:      {self.clean}  ({_took(s['clean'], self.peak_rss_mb['clean'])})",
+            f"  poisoned run:   {self.poisoned}  ({_took(s['poisoned'], self.peak_rss_mb['poisoned'])})",
             f"  attack files:   {self.poisoned.parent / 'attack'}",
             *(f"  {line}" for line in summary_lines(self.report, self.report_dir)),
             f"  look at it:     ns-viewer --load-config {self.poisoned} --viewer.websocket-host 127.0.0.1",
@@ -58,8 +60,12 @@ class DemoResult:
         return "\n".join(lines)
 
 
-def _took(seconds: float) -> str:
-    return f"trained in {seconds:.0f} s" if seconds else "reused"
+def _took(seconds: float, peak_rss_mb: float | None) -> str:
+    if not seconds:
+        return "reused"
+    return f"trained in {seconds:.0f} s" + (
+        "" if peak_rss_mb is None else f", peak RSS {peak_rss_mb:.0f} MiB"
+    )
 
 
 def run_demo(output: Path, iterations: int | None = None, seed: int = 0) -> DemoResult:
@@ -90,15 +96,19 @@ def run_demo(output: Path, iterations: int | None = None, seed: int = 0) -> Demo
         for name, extra in (("clean", ("--pipeline.attack.enabled", "False")), ("poisoned", ()))
     }
     records = train_side_by_side(specs, output)
+    peak = {}
     for name, record in records.items():
         seconds[name] = record.seconds if record.trained_now else 0.0
+        peak[name] = record.peak_rss_mb if record.trained_now else None
     configs = {name: spec.config_path for name, spec in specs.items()}
     t0 = time.perf_counter()
     print("stealth-ns demo: writing the report (rendering both runs)")
     report = write_report(configs["poisoned"], configs["clean"], output / "report")
     seconds["report"] = time.perf_counter() - t0
     total = time.perf_counter() - start
-    return DemoResult(scene, configs["clean"], configs["poisoned"], output / "report", report, seconds, total)
+    return DemoResult(
+        scene, configs["clean"], configs["poisoned"], output / "report", report, peak, seconds, total
+    )
 
 
 def train_side_by_side(specs: dict[str, TrainSpec], output: Path) -> dict[str, TrainRecord]:

@@ -90,3 +90,17 @@ def test_bench_train_bad_options(tmp_path):
     assert "Traceback" not in proc.stderr
     proc = run_cli("stealth-ns", "bench", "train", "--data", str(tmp_path / "missing"), check=False)
     assert proc.returncode != 0 and "does not exist" in proc.stderr + proc.stdout
+
+
+def test_run_command_reports_the_childs_peak_rss(tmp_path):
+    import sys
+
+    from stealth_ns.errors import StealthNSError
+    from stealth_ns.evaluation.runs import run_command
+
+    grow = "b = bytearray(300 * 2**20); b[::4096] = b'x' * len(b[::4096]); print('done')"
+    peak = run_command([sys.executable, "-c", grow], tmp_path / "log", stream=False)
+    assert peak is not None and peak >= 300
+    assert "done" in (tmp_path / "log").read_text()
+    with pytest.raises(StealthNSError, match="exit 3"):
+        run_command([sys.executable, "-c", "raise SystemExit(3)"], tmp_path / "log2", stream=False)

@@ -63,8 +63,9 @@ def run_command(
     stream: bool = True,
     on_line: Callable[[str], None] | None = None,
     env: dict[str, str] | None = None,
-) -> None:
-    """Run ``cmd`` with its output written to ``log`` (and to the terminal when ``stream``).
+) -> float | None:
+    """Run ``cmd`` with its output written to ``log`` (and to the terminal when ``stream``); returns
+    the child's peak resident memory in MiB (None where the OS does not report it).
 
     ``on_line`` sees every output line (e.g. to follow progress); ``env`` is added to the
     environment. A non-zero exit raises :class:`StealthNSError` naming the log; Ctrl-C stops
@@ -84,7 +85,7 @@ def run_command(
                 fh.write(line)
                 if on_line is not None:
                     on_line(line)
-            code = proc.wait()
+            code, peak_mb = _wait_with_peak_rss(proc)
         except BaseException:
             proc.terminate()
             try:
@@ -95,6 +96,16 @@ def run_command(
             raise
     if code != 0:
         raise StealthNSError(f"{Path(cmd[0]).name} failed (exit {code}); see {log}")
+    return peak_mb
+
+
+def _wait_with_peak_rss(proc: subprocess.Popen) -> tuple[int, float | None]:
+    """Wait for ``proc``; (exit code, its peak RSS in MiB from ``wait4``'s resource usage)."""
+    if not hasattr(os, "wait4"):  # not on Windows
+        return proc.wait(), None
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)  # Popen must not wait for it again
+    return proc.returncode, usage.ru_maxrss / 1024  # KiB on Linux
 
 
 @dataclass(frozen=True)
@@ -190,6 +201,8 @@ class TrainRecord:
     command: list[str]
     trained_now: bool = False
     """True when this call trained it, False when an earlier run was reused."""
+    peak_rss_mb: float | None = None
+    """Peak resident memory of the ns-train process, MiB (None: not measured)."""
 
     @classmethod
     def from_marker(cls, data: dict[str, Any]) -> TrainRecord:
@@ -200,6 +213,7 @@ class TrainRecord:
             iterations=int(data["iterations"]),
             final_checkpoint=str(data["final_checkpoint"]),
             command=[str(c) for c in data["command"]],
+            peak_rss_mb=data.get("peak_rss_mb"),
         )
 
 
@@ -274,7 +288,7 @@ def train(
     cmd = spec.command()
     t0 = time.perf_counter()
     threads = None if spec.threads is None else {"OMP_NUM_THREADS": str(spec.threads)}
-    run_command(cmd, log, stream=stream, on_line=on_line, env=threads)
+    peak_mb = run_command(cmd, log, stream=stream, on_line=on_line, env=threads)
     seconds = time.perf_counter() - t0
     if not spec.config_path.is_file():
         raise StealthNSError(f"ns-train exited without writing {spec.config_path}; see {log}")
@@ -292,6 +306,7 @@ def train(
         final_checkpoint=final.as_posix(),
         command=cmd,
         trained_now=True,
+        peak_rss_mb=None if peak_mb is None else round(peak_mb, 1),
     )
     data = {
         "identity": spec.identity(),
@@ -301,6 +316,7 @@ def train(
         "iterations": record.iterations,
         "final_checkpoint": record.final_checkpoint,
         "command": record.command,
+        "peak_rss_mb": record.peak_rss_mb,
         "log": str(log),
     }
     write_json_atomic(spec.marker_path, data)
