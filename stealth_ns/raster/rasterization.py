@@ -7,8 +7,10 @@ Backends:
   - ``"auto"``: gsplat on CUDA tensors, otherwise cpp if it compiles, else torch (with one
     warning saying why).
 
-The CPU path: projection and SH colour in torch (``projection``), tile intersection
-(``tiles``), then the chosen CPU rasterize-to-pixels kernel. The returned ``info`` has
+The CPU path: projection and SH colour (compiled, ``cpp_backend.project_gaussians_cpp`` and
+``sh_colors_cpp``, on the ``cpp`` backend unless the cameras need a gradient; else the torch
+reference ``projection``), tile intersection (``tiles``), then the chosen CPU rasterize-to-pixels
+kernel. The returned ``info`` has
 what gsplat's ``DefaultStrategy`` reads: ``means2d`` (non-leaf, so its gradient can be
 retained), ``radii [C, N]``, ``width``, ``height``, ``n_cameras``, ``gaussian_ids=None``.
 """
