@@ -1,19 +1,20 @@
-"""Compiled CPU backend for the rasterize-to-pixels stage of 3D Gaussian Splatting.
+"""Compiled CPU backend of 3D Gaussian Splatting: projection + SH, tile intersection, rasterize-to-pixels.
 
-The C++ sources (``csrc/rasterize_cpu.cpp``) are compiled on first use with
-``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP) into a cache directory:
+The C++ sources (``csrc/rasterize_cpu.cpp``, ``csrc/project_cpu.cpp``) are compiled on first use
+with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP) into a cache directory:
 
 * ``$STEALTH_NS_CACHE/torch_ext/<key>`` when ``STEALTH_NS_CACHE`` is set,
 * ``~/.cache/stealth_ns/torch_ext/<key>`` otherwise,
 
-where ``<key>`` hashes the source, the compiler flags, the torch and Python versions and the CPU
+where ``<key>`` hashes the sources, the compiler flags, the torch and Python versions and the CPU
 model/flags, so a cache shared between machines never hands out a binary built for another CPU.
 
 Set ``STEALTH_NS_DISABLE_CPP=1`` to force the pure-PyTorch fallback: :func:`load_extension` then
 returns ``None`` and :func:`compile_error` says why.
 
 The kernels mirror gsplat 1.4.0's CUDA ``rasterize_to_pixels`` forward/backward (see the header of
-the C++ file for the exact semantics) and its ``isect_tiles`` + ``isect_offset_encode``.
+the C++ file for the exact semantics), its ``isect_tiles`` + ``isect_offset_encode``, and its
+projection and SH (forward and backward; ``projection.py`` is their torch reference).
 """
 
 from __future__ import annotations
