@@ -17,7 +17,7 @@ config holds and refuses every other python tag before importing or calling anyt
 
 Allowed modules: ``nerfstudio.*`` except its scripts (``nerfstudio.scripts``,
 ``nerfstudio.process_data``, ``nerfstudio.utils.scripts``), the ``stealth_ns`` modules a config
-names (attack, datamanager, model, pipeline, schedulers, raster) and ``torch.optim``.
+names (attack, datamanager, model, pipeline, schedulers, optimizers, raster) and ``torch.optim``.
 ``safe_eval_setup`` is nerfstudio's ``eval_setup`` with this loader. docs/security.md.
 """
 
@@ -47,6 +47,7 @@ ALLOWED_MODULES: tuple[str, ...] = (
     "stealth_ns.model",
     "stealth_ns.pipeline",
     "stealth_ns.schedulers",
+    "stealth_ns.optimizers",
     "stealth_ns.raster",
     "torch.optim",
 )

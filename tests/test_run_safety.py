@@ -234,3 +234,17 @@ def test_rank_views_names_the_frame_with_a_nan_pose(tiny_orbit_scene, tmp_path):
         rank_scene_views(scene)
     message = str(err.value)
     assert f"frame 3 ({name})" in message and "not finite" in message and "coincide" not in message
+
+
+@pytest.mark.parametrize("method", ["stealth-splat-lite", "stealth-splat"])
+def test_every_registered_method_config_loads_with_the_safe_loader(tmp_path, method):
+    """A run's config.yml names every class of its method config (optimizers included): all allowed."""
+    import copy
+
+    from stealth_ns.evaluation.experiments import method_config
+
+    config = copy.deepcopy(method_config(method))
+    path = tmp_path / "config.yml"
+    path.write_text(yaml.dump(config), encoding="utf-8")
+    loaded = load_config(path)
+    assert loaded.optimizers["means"]["optimizer"] == config.optimizers["means"]["optimizer"]
