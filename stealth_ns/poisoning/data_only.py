@@ -45,6 +45,7 @@ from stealth_ns.poisoning.dataset_copy import (
     to_dataset_frame,
     write_record,
 )
+from stealth_ns.poisoning.distortion import camera_distortion
 from stealth_ns.poisoning.setup import setup_pipeline, trainer_config
 
 STATIC_NOISE_NOTE = (
@@ -145,21 +146,30 @@ def _write_targets(pipeline: Any, copy: PoisonedCopy) -> None:
     from stealth_ns.pipeline import training_target
 
     dm = pipeline.datamanager
-    files = dm.train_dataparser_outputs.image_filenames
+    outputs = dm.train_dataparser_outputs
     for v in pipeline.poison_views:
-        image = training_target(v, dm.cached_train[v.index]["image"])
-        copy.write_image(v.name, files[v.index], to_uint8(image), "illusion composite I_ILL")
+        clean = dm.cached_train[v.index]["image"]
+        image = training_target(v, clean)
+        lens = camera_distortion(outputs.cameras, v.index)
+        copy.write_training_image(
+            v.name, outputs.image_filenames[v.index], to_uint8(image), to_uint8(clean), lens,
+            "illusion composite I_ILL",
+        )  # fmt: skip
 
 
 def _write_static_noise(pipeline: Any, copy: PoisonedCopy, attack: AttackConfig) -> None:
     dm = pipeline.datamanager
-    files = dm.train_dataparser_outputs.image_filenames
+    outputs = dm.train_dataparser_outputs
     poisoned = {v.index for v in pipeline.poison_views}
     for index, name in enumerate(dm.train_image_names):
         if index in poisoned:
             continue
-        noisy = noisy_image(dm.cached_train[index]["image"], attack.noise_sigma0, attack.seed, index, 0)
-        copy.write_image(name, files[index], to_uint8(noisy), f"static noise sigma {attack.noise_sigma0:g}")
+        clean = dm.cached_train[index]["image"]
+        noisy = noisy_image(clean, attack.noise_sigma0, attack.seed, index, 0)
+        copy.write_training_image(
+            name, outputs.image_filenames[index], to_uint8(noisy), to_uint8(clean),
+            camera_distortion(outputs.cameras, index), f"static noise sigma {attack.noise_sigma0:g}",
+        )  # fmt: skip
 
 
 def _summary(copy: PoisonedCopy, record: AttackRecord, folder: Path, victim: str) -> str:

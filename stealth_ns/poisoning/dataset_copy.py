@@ -158,6 +158,27 @@ class PoisonedCopy:
             "encode_error_255": error,
         }
 
+    def write_training_image(
+        self, name: str, source_file: Path, image: np.ndarray, clean: np.ndarray, lens: Any, change: str
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Replace a training image whose poisoned and clean versions in nerfstudio's training frame are
+        ``image`` and ``clean`` (uint8 ``[h, w, C]``). ``lens``: :func:`distortion.camera_distortion` of
+        the view; with lens distortion the file gets its own pixels plus the change mapped back onto
+        them. Returns (pixels written, the source's pixels), both in the file's frame."""
+        if lens is None:
+            self.write_image(name, source_file, image, change)
+            return image, clean
+        from stealth_ns.poisoning.distortion import change_in_source_frame
+
+        original = read_image(source_file, f"training image {source_file}")
+        delta = change_in_source_frame(image.astype(np.float32) - clean.astype(np.float32), *lens)
+        written = original.astype(np.float32).reshape(*original.shape[:2], -1)
+        channels = min(written.shape[-1], delta.shape[-1])  # an RGB change on an RGBA file: colour only
+        written[..., :channels] += delta[..., :channels]
+        written = np.clip(np.rint(written), 0, 255).astype(np.uint8).reshape(original.shape)
+        self.write_image(name, source_file, written, change + " (mapped back through the lens distortion)")
+        return written, original
+
 
 def max_abs_difference(a: np.ndarray, b: np.ndarray) -> float:
     """Largest absolute difference between two uint8 images of one shape, on the 0-255 scale."""

@@ -44,6 +44,7 @@ from stealth_ns.poisoning.dataset_copy import (
     open_source,
     write_record,
 )
+from stealth_ns.poisoning.distortion import camera_distortion
 from stealth_ns.poisoning.ipa import clip_parameter_change, linf_project, nearest_views, views_within_angle
 from stealth_ns.poisoning.setup import setup_trainer, trainer_config
 
@@ -194,13 +195,15 @@ def ipa_poison(
 def _write_poisoned(copy: PoisonedCopy, pipeline: Any, epochs: IPAEpochs) -> None:
     """The last epoch's images into the copy, with their measured L-infinity distance to the clean image."""
     dm = pipeline.datamanager
-    files = dm.train_dataparser_outputs.image_filenames
+    outputs = dm.train_dataparser_outputs
     names = dm.train_image_names
     for i, image in epochs.poisoned.items():
-        written = to_uint8(image)
-        clean = to_uint8(epochs.clean[i].cpu())
-        copy.write_image(names[i], files[i], written, "IPA-Splat perturbation")
-        copy.images[names[i]]["linf_255"] = max_abs_difference(written, clean)
+        lens = camera_distortion(outputs.cameras, i)
+        written, source = copy.write_training_image(
+            names[i], outputs.image_filenames[i], to_uint8(image), to_uint8(epochs.clean[i].cpu()), lens,
+            "IPA-Splat perturbation",
+        )  # fmt: skip
+        copy.images[names[i]]["linf_255"] = max_abs_difference(written, source)
 
 
 def _summary(copy: PoisonedCopy, epochs: IPAEpochs, folder: Path, victim: str, cfg: IPAConfig) -> str:
