@@ -129,6 +129,11 @@ def load_run(config_path: Path) -> LoadedRun:
         )
     except StealthNSExit as err:  # the pipeline's own one-line errors, as raised
         raise err.error from None
+    # nerfstudio undistorts the training images, and their cameras in place, when it first caches them
+    # (lazily); a run without the attack never did: cache them, so the training cameras are the ones
+    # the run trained with and its attack record uses (a lens-distorted capture trains on cropped images)
+    if hasattr(type(pipeline.datamanager), "cached_train"):
+        pipeline.datamanager.cached_train  # noqa: B018 - the access does the work
     return LoadedRun(config_path, pipeline, step, config, Path(checkpoint))
 
 
