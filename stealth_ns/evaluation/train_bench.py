@@ -29,11 +29,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import resource
 import statistics
 import tempfile
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -141,8 +141,6 @@ def _rss_mb() -> float:
         pages = int(Path("/proc/self/statm").read_text().split()[1])
     except (OSError, ValueError, IndexError):
         return 0.0
-    import os
-
     return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
@@ -179,28 +177,28 @@ def _instrument(trainer: Any, timer: StepTimer) -> None:
     model.get_outputs = forward
 
 
-def _boundary_callback(timer: StepTimer, warmup: int, steps: int, bar: Any) -> Callable[[int], None]:
-    """A before-iteration callback that closes the previous step (its wall-clock time as ``step``) and
-    switches the timer on for the ``steps`` steps after ``warmup``."""
-    last = [time.perf_counter()]
-    rss = {}
+class _StepBoundaries:
+    """A before-iteration callback: closes the previous step (its wall-clock time as ``step``), switches
+    the timer on for the ``steps`` steps after ``warmup`` and notes the RSS at both ends of them."""
 
-    def mark(step: int) -> None:
-        now = time.perf_counter()
+    def __init__(self, timer: StepTimer, warmup: int, steps: int, bar: Any) -> None:
+        self.timer, self.warmup, self.steps, self.bar = timer, warmup, steps, bar
+        self.last = time.perf_counter()
+        self.rss: dict[str, float] = {}
+
+    def __call__(self, step: int) -> None:
+        timer = self.timer
         if timer.active:
-            timer.current["step"] = now - last[0]
+            timer.current["step"] = time.perf_counter() - self.last
             timer.end_step()
         timer.current = {}
-        timer.active = warmup <= step < warmup + steps
-        if step == warmup:
-            rss["start"] = _rss_mb()
-        if step == warmup + steps:
-            rss["end"] = _rss_mb()
-        last[0] = time.perf_counter()
-        bar.update(1)
-
-    mark.rss = rss  # type: ignore[attr-defined]
-    return mark
+        timer.active = self.warmup <= step < self.warmup + self.steps
+        if step == self.warmup:
+            self.rss["start"] = _rss_mb()
+        if step == self.warmup + self.steps:
+            self.rss["end"] = _rss_mb()
+        self.last = time.perf_counter()
+        self.bar.update(1)
 
 
 def _median(values: list[float]) -> float:
@@ -265,9 +263,9 @@ def run_train_benchmark(
         _instrument(trainer, TIMER)
         TIMER.steps = []
         with tqdm(total=config.max_num_iterations, desc="bench train", unit="step") as bar:
-            mark = _boundary_callback(TIMER, warmup, steps, bar)
+            boundaries = _StepBoundaries(TIMER, warmup, steps, bar)
             trainer.callbacks.insert(
-                0, TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], mark)
+                0, TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], boundaries)
             )
             try:
                 trainer.train()
@@ -279,7 +277,7 @@ def run_train_benchmark(
     if len(timed) < steps:
         raise StealthNSError(f"bench train: only {len(timed)} of {steps} steps were timed")
     median, mean, step_ms = summarise(timed)
-    rss = mark.rss  # type: ignore[attr-defined]
+    rss = boundaries.rss
     result = TrainBenchResult(
         scene=scene,
         method=method,

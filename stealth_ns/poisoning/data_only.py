@@ -45,7 +45,6 @@ from stealth_ns.poisoning.dataset_copy import (
     to_dataset_frame,
     write_record,
 )
-from stealth_ns.poisoning.distortion import camera_distortion
 from stealth_ns.poisoning.setup import setup_pipeline, trainer_config
 
 STATIC_NOISE_NOTE = (
@@ -150,11 +149,9 @@ def _write_targets(pipeline: Any, copy: PoisonedCopy) -> None:
     for v in pipeline.poison_views:
         clean = dm.cached_train[v.index]["image"]
         image = training_target(v, clean)
-        lens = camera_distortion(outputs.cameras, v.index)
         copy.write_training_image(
-            v.name, outputs.image_filenames[v.index], to_uint8(image), to_uint8(clean), lens,
-            "illusion composite I_ILL",
-        )  # fmt: skip
+            v.name, outputs, v.index, to_uint8(image), to_uint8(clean), "illusion composite I_ILL"
+        )
 
 
 def _write_static_noise(pipeline: Any, copy: PoisonedCopy, attack: AttackConfig) -> None:
@@ -166,10 +163,8 @@ def _write_static_noise(pipeline: Any, copy: PoisonedCopy, attack: AttackConfig)
             continue
         clean = dm.cached_train[index]["image"]
         noisy = noisy_image(clean, attack.noise_sigma0, attack.seed, index, 0)
-        copy.write_training_image(
-            name, outputs.image_filenames[index], to_uint8(noisy), to_uint8(clean),
-            camera_distortion(outputs.cameras, index), f"static noise sigma {attack.noise_sigma0:g}",
-        )  # fmt: skip
+        change = f"static noise sigma {attack.noise_sigma0:g}"
+        copy.write_training_image(name, outputs, index, to_uint8(noisy), to_uint8(clean), change)
 
 
 def _summary(copy: PoisonedCopy, record: AttackRecord, folder: Path, victim: str) -> str:

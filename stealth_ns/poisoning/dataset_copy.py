@@ -159,16 +159,20 @@ class PoisonedCopy:
         }
 
     def write_training_image(
-        self, name: str, source_file: Path, image: np.ndarray, clean: np.ndarray, lens: Any, change: str
+        self, name: str, outputs: Any, index: int, image: np.ndarray, clean: np.ndarray, change: str
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Replace a training image whose poisoned and clean versions in nerfstudio's training frame are
-        ``image`` and ``clean`` (uint8 ``[h, w, C]``). ``lens``: :func:`distortion.camera_distortion` of
-        the view; with lens distortion the file gets its own pixels plus the change mapped back onto
-        them. Returns (pixels written, the source's pixels), both in the file's frame."""
+        """Replace training view ``index`` of the source's dataparser ``outputs``, whose poisoned and
+        clean versions in nerfstudio's training frame are ``image`` and ``clean`` (uint8 ``[h, w, C]``).
+        With lens distortion the file gets its own pixels plus the change mapped back onto them
+        (:mod:`stealth_ns.poisoning.distortion`). Returns (pixels written, the source's pixels), both in
+        the file's frame."""
+        from stealth_ns.poisoning.distortion import camera_distortion, change_in_source_frame
+
+        source_file = outputs.image_filenames[index]
+        lens = camera_distortion(outputs.cameras, index)
         if lens is None:
             self.write_image(name, source_file, image, change)
             return image, clean
-        from stealth_ns.poisoning.distortion import change_in_source_frame
 
         original = read_image(source_file, f"training image {source_file}")
         delta = change_in_source_frame(image.astype(np.float32) - clean.astype(np.float32), *lens)

@@ -44,7 +44,6 @@ from stealth_ns.poisoning.dataset_copy import (
     open_source,
     write_record,
 )
-from stealth_ns.poisoning.distortion import camera_distortion
 from stealth_ns.poisoning.ipa import clip_parameter_change, linf_project, nearest_views, views_within_angle
 from stealth_ns.poisoning.setup import setup_trainer, trainer_config
 
@@ -198,11 +197,9 @@ def _write_poisoned(copy: PoisonedCopy, pipeline: Any, epochs: IPAEpochs) -> Non
     outputs = dm.train_dataparser_outputs
     names = dm.train_image_names
     for i, image in epochs.poisoned.items():
-        lens = camera_distortion(outputs.cameras, i)
         written, source = copy.write_training_image(
-            names[i], outputs.image_filenames[i], to_uint8(image), to_uint8(epochs.clean[i].cpu()), lens,
-            "IPA-Splat perturbation",
-        )  # fmt: skip
+            names[i], outputs, i, to_uint8(image), to_uint8(epochs.clean[i].cpu()), "IPA-Splat perturbation"
+        )
         copy.images[names[i]]["linf_255"] = max_abs_difference(written, source)
 
 

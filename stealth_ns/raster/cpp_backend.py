@@ -218,13 +218,8 @@ class RasterizeToPixelsCPU(torch.autograd.Function):
             ctx.saved_tensors
         )
         C, H, W = t_final.shape
-        D = colors.shape[-1]
-        if v_render_colors is None:
-            v_render_colors = torch.zeros((C, H, W, D), dtype=torch.float32)
-        if v_render_alphas is None:
-            v_render_alphas = torch.zeros((C, H, W, 1), dtype=torch.float32)
-        v_render_colors = v_render_colors.to(torch.float32).contiguous()
-        v_render_alphas = v_render_alphas.to(torch.float32).contiguous()
+        v_render_colors = _grad_or_zeros(v_render_colors, (C, H, W, colors.shape[-1]))
+        v_render_alphas = _grad_or_zeros(v_render_alphas, (C, H, W, 1))
         ext = _require()
         with phase("backward: rasterize"):
             v_means2d, v_conics, v_colors, v_opacities = ext.rasterize_bwd(
@@ -253,6 +248,11 @@ class RasterizeToPixelsCPU(torch.autograd.Function):
 
 def _f32(t: Tensor) -> Tensor:
     return t if (t.dtype == torch.float32 and t.is_contiguous()) else t.to(torch.float32).contiguous()
+
+
+def _grad_or_zeros(grad: Tensor | None, shape: tuple[int, ...]) -> Tensor:
+    """An upstream gradient as contiguous float32, zeros where autograd passed none."""
+    return torch.zeros(shape, dtype=torch.float32) if grad is None else _f32(grad)
 
 
 def _i32(t: Tensor) -> Tensor:
@@ -395,10 +395,6 @@ class SphericalHarmonicsCPU(torch.autograd.Function):
         with phase("backward: projection+SH"):
             v_coeffs, v_means = _require().sh_bwd(means, viewmats, coeffs, ctx.degree, radii, _f32(v_colors))
         return v_means, None, v_coeffs, None, None
-
-
-def _grad_or_zeros(grad: Tensor | None, shape: tuple[int, ...]) -> Tensor:
-    return torch.zeros(shape, dtype=torch.float32) if grad is None else _f32(grad)
 
 
 def project_gaussians_cpp(
