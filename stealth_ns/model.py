@@ -49,13 +49,14 @@ from nerfstudio.models.splatfacto import (
 )
 from nerfstudio.utils.colors import get_color
 from nerfstudio.utils.rich_utils import CONSOLE
-from pytorch_msssim import SSIM
 from torch import Tensor
 
 from stealth_ns.errors import StealthNSError
 from stealth_ns.gaussian_rows import append_rows
 from stealth_ns.metrics import LazyLPIPS
 from stealth_ns.raster import rasterization, resolve_backend
+from stealth_ns.raster.projection import SHCoefficients
+from stealth_ns.ssim import SSIM
 
 
 @dataclass
@@ -504,7 +505,7 @@ class StealthSplatModel(SplatfactoModel):
     def _rasterize(
         self,
         g: dict[str, Tensor],
-        colors: Tensor,
+        colors: Tensor | SHCoefficients,
         sh_degree: int | None,
         viewmat: Tensor,
         K: Tensor,
@@ -568,11 +569,12 @@ class StealthSplatModel(SplatfactoModel):
         viewmat, K, W, H = self._camera_geometry(camera, c2w)
         self.last_size = (H, W)
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
-        colors = torch.cat((g["features_dc"][:, None, :], g["features_rest"]), dim=1)
+        colors: Tensor | tuple[Tensor, Tensor]
         if self.config.sh_degree > 0:
             sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
+            colors = (g["features_dc"], g["features_rest"])  # split: the compiled kernels read it as stored
         else:
-            colors = torch.sigmoid(colors).squeeze(1)
+            colors = torch.sigmoid(g["features_dc"])
             sh_degree = None
         render, alpha, self.info = self._rasterize(g, colors, sh_degree, viewmat, K, (W, H), render_mode)
         if self.training:

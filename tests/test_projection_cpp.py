@@ -108,16 +108,23 @@ def test_projection_clamped_jacobian_and_tiny_quaternions():
         torch.testing.assert_close(a.grad, b.grad, rtol=1e-3, atol=1e-5 * b.grad.abs().max().item())
 
 
+@pytest.mark.parametrize("split", [False, True], ids=["joined", "split"])
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
-def test_sh_matches_reference(degree):
+def test_sh_matches_reference(degree, split):
+    """Colours and gradients of the compiled SH kernel equal the reference, with the coefficients
+    given joined ``[N, K, 3]`` or split as the model stores them (dc ``[N, 3]``, rest ``[N, K-1, 3]``)."""
     means, _, _, coeffs, viewmats, _ = _scene(300, 2, EYES["three"])
     C, N = viewmats.shape[0], means.shape[0]
     radii = (torch.rand(C, N, generator=torch.Generator().manual_seed(4)) > 0.3).int()
     v = torch.randn(C, N, 3, generator=torch.Generator().manual_seed(5))
-    m1, c1 = means.clone().requires_grad_(True), coeffs.clone().requires_grad_(True)
-    m2, c2 = means.clone().requires_grad_(True), coeffs.clone().requires_grad_(True)
-
-    colors = cpp_backend.sh_colors_cpp(m1, viewmats, c1, degree, radii)
+    m1, m2 = means.clone().requires_grad_(True), means.clone().requires_grad_(True)
+    c2 = coeffs.clone().requires_grad_(True)
+    if split:
+        dc, rest = coeffs[:, 0].clone().requires_grad_(True), coeffs[:, 1:].clone().requires_grad_(True)
+        colors = cpp_backend.sh_colors_cpp(m1, viewmats, (dc, rest), degree, radii)
+    else:
+        c1 = coeffs.clone().requires_grad_(True)
+        colors = cpp_backend.sh_colors_cpp(m1, viewmats, c1, degree, radii)
     campos = torch.linalg.inv(viewmats)[:, :3, 3]
     ref = torch.clamp_min(
         spherical_harmonics(degree, m2[None] - campos[:, None], c2[None].expand(C, -1, -1, -1)) + 0.5, 0
@@ -128,13 +135,35 @@ def test_sh_matches_reference(degree):
     assert (colors[~drawn] == 0).all()
     (colors * v).sum().backward()
     (ref * v * drawn[..., None]).sum().backward()
-    torch.testing.assert_close(c1.grad, c2.grad, rtol=1e-4, atol=1e-5)
+    coeff_grad = torch.cat((dc.grad[:, None], rest.grad), dim=1) if split else c1.grad
+    torch.testing.assert_close(coeff_grad, c2.grad, rtol=1e-4, atol=1e-5)
     if degree == 0:  # a constant colour: no gradient for the means
         assert m2.grad is None and not m1.grad.any()
     else:
         torch.testing.assert_close(m1.grad, m2.grad, rtol=1e-3, atol=1e-5 * m2.grad.abs().max().item())
     if degree < 3:
-        assert (c1.grad[:, (degree + 1) ** 2 :] == 0).all()
+        assert (coeff_grad[:, (degree + 1) ** 2 :] == 0).all()
+
+
+@pytest.mark.parametrize("backend", ["cpp", "torch"])
+def test_rasterization_takes_split_sh_coefficients(backend):
+    """``colors=(dc, rest)`` renders and differentiates exactly as the joined ``[N, K, 3]`` tensor."""
+    from stealth_ns.raster import rasterization
+
+    means, quats, scales, coeffs, viewmats, Ks = _scene(200, 4, EYES["three"][:1], spread=1.0)
+    opac = torch.full((means.shape[0],), 0.6)
+    joined = coeffs.clone().requires_grad_(True)
+    dc, rest = coeffs[:, 0].clone().requires_grad_(True), coeffs[:, 1:].clone().requires_grad_(True)
+    outs = []
+    for colors in (joined, (dc, rest)):
+        img, alpha, _ = rasterization(
+            means, quats, scales, opac, colors, viewmats, Ks, W, H, sh_degree=3, backend=backend
+        )
+        (img.square().sum() + alpha.sum()).backward()
+        outs.append(img.detach())
+    assert outs[0].abs().sum() > 0
+    torch.testing.assert_close(outs[1], outs[0], rtol=0, atol=0)
+    torch.testing.assert_close(torch.cat((dc.grad[:, None], rest.grad), dim=1), joined.grad, rtol=0, atol=0)
 
 
 def test_rasterization_uses_the_compiled_projection_with_reference_gradients():
@@ -170,4 +199,4 @@ def test_bad_inputs_raise():
         ext.project_fwd(means, quats[:, :3].contiguous(), scales, viewmats, Ks, W, H, 0.3, 0.01, 1e10, 0.0)
     radii = torch.ones(1, 10, dtype=torch.int32)
     with pytest.raises(RuntimeError, match="needs 16 coefficients"):
-        ext.sh_fwd(means, viewmats, coeffs[:, :9].contiguous(), 3, radii)
+        ext.sh_fwd(means, viewmats, coeffs[:, 0].contiguous(), coeffs[:, 1:9].contiguous(), 3, radii)

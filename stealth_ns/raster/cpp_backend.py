@@ -1,7 +1,7 @@
 """Compiled CPU backend of 3D Gaussian Splatting: projection + SH, tile intersection, rasterize-to-pixels.
 
-The C++ sources (``csrc/rasterize_cpu.cpp``, ``csrc/project_cpu.cpp``) are compiled on first use
-with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP) into a cache directory:
+The C++ sources (``csrc/rasterize_cpu.cpp``, ``csrc/project_cpu.cpp``, ``csrc/ssim_cpu.cpp``) are
+compiled on first use with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP) into a cache directory:
 
 * ``$STEALTH_NS_CACHE/torch_ext/<key>`` when ``STEALTH_NS_CACHE`` is set,
 * ``~/.cache/stealth_ns/torch_ext/<key>`` otherwise,
@@ -14,7 +14,8 @@ returns ``None`` and :func:`compile_error` says why.
 
 The kernels mirror gsplat 1.4.0's CUDA ``rasterize_to_pixels`` forward/backward (see the header of
 the C++ file for the exact semantics), its ``isect_tiles`` + ``isect_offset_encode``, and its
-projection and SH (forward and backward; ``projection.py`` is their torch reference).
+projection and SH (forward and backward; ``projection.py`` is their torch reference); the same
+module holds the training loss's SSIM (``stealth_ns/ssim.py``; pytorch_msssim is its reference).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from stealth_ns.raster.projection import SHCoefficients
 from stealth_ns.step_timing import phase
 
 __all__ = [
@@ -49,8 +51,8 @@ __all__ = [
 
 EXTENSION_NAME = "stealth_ns_raster_cpu"
 _CSRC = Path(__file__).resolve().parent / "csrc"
-_SOURCES = (_CSRC / "rasterize_cpu.cpp", _CSRC / "project_cpu.cpp")
-_HEADERS = (_CSRC / "project_cpu.h",)
+_SOURCES = (_CSRC / "rasterize_cpu.cpp", _CSRC / "project_cpu.cpp", _CSRC / "ssim_cpu.cpp")
+_HEADERS = (_CSRC / "project_cpu.h", _CSRC / "ssim_cpu.h")
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that
 # decide which (pixel, Gaussian) pairs pass the alpha >= 1/255 test, so forward and backward could
 # disagree.  -ffp-contract=off for the same reason (no FMA contraction that may differ between the
@@ -380,21 +382,24 @@ class ProjectGaussiansCPU(torch.autograd.Function):
 
 class SphericalHarmonicsCPU(torch.autograd.Function):
     """Autograd wrapper around ``sh_fwd`` / ``sh_bwd``: per-camera colours
-    ``max(SH(degree, means - camera centre, coeffs) + 0.5, 0)``, 0 where the radius is 0."""
+    ``max(SH(degree, means - camera centre, [dc, rest]) + 0.5, 0)``, 0 where the radius is 0. The
+    coefficients stay split as the model stores them, so neither pass joins or splits ``[N, K, 3]``."""
 
     @staticmethod
-    def forward(ctx, means, viewmats, coeffs, degree, radii):
-        colors = _require().sh_fwd(means, viewmats, coeffs, degree, radii)
-        ctx.save_for_backward(means, viewmats, coeffs, radii)
+    def forward(ctx, means, viewmats, sh_dc, sh_rest, degree, radii):
+        colors = _require().sh_fwd(means, viewmats, sh_dc, sh_rest, degree, radii)
+        ctx.save_for_backward(means, viewmats, sh_dc, sh_rest, radii)
         ctx.degree = degree
         return colors
 
     @staticmethod
     def backward(ctx, v_colors):
-        means, viewmats, coeffs, radii = ctx.saved_tensors
+        means, viewmats, sh_dc, sh_rest, radii = ctx.saved_tensors
         with phase("backward: projection+SH"):
-            v_coeffs, v_means = _require().sh_bwd(means, viewmats, coeffs, ctx.degree, radii, _f32(v_colors))
-        return v_means, None, v_coeffs, None, None
+            v_dc, v_rest, v_means = _require().sh_bwd(
+                means, viewmats, sh_dc, sh_rest, ctx.degree, radii, _f32(v_colors)
+            )
+        return v_means, None, v_dc, v_rest, None, None
 
 
 def project_gaussians_cpp(
@@ -435,10 +440,17 @@ def project_gaussians_cpp(
     )
 
 
-def sh_colors_cpp(means: Tensor, viewmats: Tensor, coeffs: Tensor, degree: int, radii: Tensor) -> Tensor:
-    """Per-camera colours ``[C, N, 3]`` of SH coefficients ``coeffs`` ``[N, K, 3]`` (the reference:
+def sh_colors_cpp(
+    means: Tensor, viewmats: Tensor, coeffs: SHCoefficients, degree: int, radii: Tensor
+) -> Tensor:
+    """Per-camera colours ``[C, N, 3]`` of SH coefficients (the reference:
     ``clamp_min(spherical_harmonics(degree, means - camera centre, coeffs) + 0.5, 0)``), compiled; 0 for
-    Gaussians of radius 0 in ``radii`` ``[C, N]``."""
+    Gaussians of radius 0 in ``radii`` ``[C, N]``. ``coeffs`` is ``[N, K, 3]`` or, as the model stores
+    them, the pair ``(dc [N, 3], rest [N, K - 1, 3])`` (no copy of either)."""
+    if isinstance(coeffs, Tensor):
+        sh_dc, sh_rest = coeffs[:, 0], coeffs[:, 1:]
+    else:
+        sh_dc, sh_rest = coeffs
     return SphericalHarmonicsCPU.apply(
-        _f32(means), _f32(viewmats.detach()), _f32(coeffs), int(degree), _i32(radii.detach())
+        _f32(means), _f32(viewmats.detach()), _f32(sh_dc), _f32(sh_rest), int(degree), _i32(radii.detach())
     )

@@ -15,6 +15,18 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+# SH coefficients: one ``[N, K, 3]`` tensor, or nerfstudio's split storage ``(dc [N, 3], rest [N, K - 1, 3])``
+# (the compiled CPU kernels read the pair as it is, sparing a join forward and a split backward every step).
+SHCoefficients = Tensor | tuple[Tensor, Tensor]
+
+
+def join_sh(coeffs: SHCoefficients) -> Tensor:
+    """``[N, K, 3]`` (or ``[..., K, 3]``) coefficients from either form of :data:`SHCoefficients`."""
+    if isinstance(coeffs, Tensor):
+        return coeffs
+    sh_dc, sh_rest = coeffs
+    return torch.cat((sh_dc[..., None, :], sh_rest), dim=-2)
+
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:
     """Rotation matrices of (w, x, y, z) quaternions, normalised first.

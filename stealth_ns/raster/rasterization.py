@@ -23,7 +23,13 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from stealth_ns.raster.projection import project_gaussians, quat_scale_to_covar, spherical_harmonics
+from stealth_ns.raster.projection import (
+    SHCoefficients,
+    join_sh,
+    project_gaussians,
+    quat_scale_to_covar,
+    spherical_harmonics,
+)
 from stealth_ns.raster.tiles import isect_tiles, tile_grid
 from stealth_ns.raster.torch_backend import rasterize_to_pixels_torch
 from stealth_ns.step_timing import phase
@@ -75,7 +81,7 @@ def rasterization(
     quats: Tensor,
     scales: Tensor,
     opacities: Tensor,
-    colors: Tensor,
+    colors: Tensor | SHCoefficients,
     viewmats: Tensor,
     Ks: Tensor,
     width: int,
@@ -99,7 +105,8 @@ def rasterization(
     Args:
         means: [N, 3]; quats: [N, 4] (w, x, y, z); scales: [N, 3] (not log);
         opacities: [N] in [0, 1].
-        colors: [N, D] features, or [N, K, 3] SH coefficients when ``sh_degree`` is set.
+        colors: [N, D] features, or SH coefficients when ``sh_degree`` is set: [N, K, 3], or the
+            pair (dc [N, 3], rest [N, K - 1, 3]) as nerfstudio stores them (see ``SHCoefficients``).
         viewmats: [C, 4, 4] world-to-camera (OpenCV); Ks: [C, 3, 3].
         width, height: image size in pixels.
         render_mode: "RGB", "D" (accumulated depth), "ED" (expected depth), "RGB+D", "RGB+ED".
@@ -118,7 +125,7 @@ def rasterization(
             quats=quats,
             scales=scales,
             opacities=opacities,
-            colors=colors,
+            colors=join_sh(colors),
             viewmats=viewmats,
             Ks=Ks,
             width=width,
@@ -168,7 +175,7 @@ def _rasterize_cpu(
     quats: Tensor,
     scales: Tensor,
     opacities: Tensor,
-    colors: Tensor,
+    colors: Tensor | SHCoefficients,
     viewmats: Tensor,
     Ks: Tensor,
     width: int,
@@ -249,7 +256,7 @@ def _rasterize_cpu(
 
 def _camera_features(
     means: Tensor,
-    colors: Tensor,
+    colors: Tensor | SHCoefficients,
     viewmats: Tensor,
     depths: Tensor,
     sh_degree: int | None,
@@ -263,16 +270,19 @@ def _camera_features(
     (background 0). With ``compiled_radii`` ``[C, N]`` the SH colours come from the compiled kernel
     (0 for Gaussians of radius 0, which are not drawn)."""
     C = viewmats.shape[0]
-    if sh_degree is not None and compiled_radii is not None and colors.dim() == 3:
+    shared = not isinstance(colors, Tensor) or colors.dim() == 3  # not per-camera [C, N, K, 3]
+    if sh_degree is not None and compiled_radii is not None and shared:
         from stealth_ns.raster.cpp_backend import sh_colors_cpp
 
         feats = sh_colors_cpp(means, viewmats, colors, sh_degree, compiled_radii)
     elif sh_degree is not None:
         campos = torch.linalg.inv(viewmats)[:, :3, 3]
         dirs = means[None, :, :] - campos[:, None, :]
-        coeffs = colors if colors.dim() == 4 else colors[None].expand(C, -1, -1, -1)
+        coeffs = join_sh(colors)
+        coeffs = coeffs if coeffs.dim() == 4 else coeffs[None].expand(C, -1, -1, -1)
         feats = torch.clamp_min(spherical_harmonics(sh_degree, dirs, coeffs) + 0.5, 0.0)
     else:
+        assert isinstance(colors, Tensor), "split SH coefficients need sh_degree"
         feats = colors if colors.dim() == 3 else colors[None].expand(C, -1, -1)
 
     if render_mode in ("RGB+D", "RGB+ED"):

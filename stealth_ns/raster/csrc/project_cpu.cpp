@@ -254,23 +254,30 @@ inline void sh_basis(int degree, float x, float y, float z, float *Y, float (*gr
 }
 
 struct ShInputs {
-    int64_t C, N, K;
+    int64_t C, N, R;  // cameras, Gaussians, higher-order coefficients stored per Gaussian
     int degree, k_used;
 };
 
-ShInputs check_sh(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &coeffs,
-                  int64_t degree, const torch::Tensor &radii) {
+ShInputs check_sh(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &dc,
+                  const torch::Tensor &rest, int64_t degree, const torch::Tensor &radii) {
     check_f32(means, "means");
-    check_f32(coeffs, "coeffs");
+    check_f32(dc, "sh_dc");
+    check_f32(rest, "sh_rest");
     TORCH_CHECK(radii.device().is_cpu() && radii.scalar_type() == torch::kInt32 && radii.is_contiguous(),
                 "radii must be a contiguous CPU int32 tensor");
     TORCH_CHECK(degree >= 0 && degree <= 3, "sh degree must be in 0..3");
     const int64_t N = means.size(0), C = viewmats.size(0);
-    TORCH_CHECK(coeffs.dim() == 3 && coeffs.size(0) == N && coeffs.size(2) == 3, "coeffs must be [N, K, 3]");
+    TORCH_CHECK(dc.dim() == 2 && dc.size(0) == N && dc.size(1) == 3, "sh_dc must be [N, 3]");
+    TORCH_CHECK(rest.dim() == 3 && rest.size(0) == N && rest.size(2) == 3, "sh_rest must be [N, K - 1, 3]");
     const int k_used = (int)((degree + 1) * (degree + 1));
-    TORCH_CHECK(coeffs.size(1) >= k_used, "sh degree ", degree, " needs ", k_used, " coefficients");
+    TORCH_CHECK(rest.size(1) + 1 >= k_used, "sh degree ", degree, " needs ", k_used, " coefficients");
     TORCH_CHECK(radii.dim() == 2 && radii.size(0) == C && radii.size(1) == N, "radii must be [C, N]");
-    return {C, N, coeffs.size(1), (int)degree, k_used};
+    return {C, N, rest.size(1), (int)degree, k_used};
+}
+
+// Coefficient k (0 <= k < k_used) of Gaussian n, channel ch: the DC term is stored apart from the rest.
+inline float coeff(const float *dc_n, const float *rest_n, int k, int ch) {
+    return k == 0 ? dc_n[ch] : rest_n[3 * (k - 1) + ch];
 }
 
 }  // namespace
@@ -377,28 +384,31 @@ std::vector<torch::Tensor> project_bwd(const torch::Tensor &means, const torch::
     return {v_means, v_quats, v_scales};
 }
 
-torch::Tensor sh_fwd(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &coeffs,
-                     int64_t degree, const torch::Tensor &radii) {
-    const ShInputs in = check_sh(means, viewmats, coeffs, degree, radii);
+torch::Tensor sh_fwd(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &dc,
+                     const torch::Tensor &rest, int64_t degree, const torch::Tensor &radii) {
+    const ShInputs in = check_sh(means, viewmats, dc, rest, degree, radii);
     const std::vector<Camera> cams = cameras(viewmats, torch::Tensor(), 0, 0);
-    auto colors = torch::zeros({in.C, in.N, 3}, means.options());
-    const float *m = means.data_ptr<float>(), *co = coeffs.data_ptr<float>();
+    auto colors = torch::empty({in.C, in.N, 3}, means.options());
+    const float *m = means.data_ptr<float>(), *cdc = dc.data_ptr<float>(), *crest = rest.data_ptr<float>();
     const int32_t *r = radii.data_ptr<int32_t>();
     float *out = colors.data_ptr<float>();
     at::parallel_for(0, in.N, kGrain, [&](int64_t begin, int64_t end) {
         float Y[16];
         for (int64_t n = begin; n < end; ++n) {
-            const float *cn = co + n * in.K * 3;
+            const float *dn = cdc + 3 * n, *rn = crest + n * in.R * 3;
             for (int64_t c = 0; c < in.C; ++c) {
                 const int64_t i = c * in.N + n;
-                if (r[i] <= 0) continue;
+                if (r[i] <= 0) {
+                    out[3 * i] = out[3 * i + 1] = out[3 * i + 2] = 0.0f;
+                    continue;
+                }
                 float d[3];
                 for (int j = 0; j < 3; ++j) d[j] = m[3 * n + j] - cams[c].centre[j];
                 const float inv = 1.0f / std::max(std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 1e-12f);
                 sh_basis(in.degree, d[0] * inv, d[1] * inv, d[2] * inv, Y, nullptr);
                 for (int ch = 0; ch < 3; ++ch) {
                     float v = 0.0f;
-                    for (int k = 0; k < in.k_used; ++k) v += Y[k] * cn[3 * k + ch];
+                    for (int k = 0; k < in.k_used; ++k) v += Y[k] * coeff(dn, rn, k, ch);
                     out[3 * i + ch] = std::max(v + 0.5f, 0.0f);
                 }
             }
@@ -408,22 +418,26 @@ torch::Tensor sh_fwd(const torch::Tensor &means, const torch::Tensor &viewmats, 
 }
 
 std::vector<torch::Tensor> sh_bwd(const torch::Tensor &means, const torch::Tensor &viewmats,
-                                  const torch::Tensor &coeffs, int64_t degree, const torch::Tensor &radii,
-                                  const torch::Tensor &v_colors) {
-    const ShInputs in = check_sh(means, viewmats, coeffs, degree, radii);
+                                  const torch::Tensor &dc, const torch::Tensor &rest, int64_t degree,
+                                  const torch::Tensor &radii, const torch::Tensor &v_colors) {
+    const ShInputs in = check_sh(means, viewmats, dc, rest, degree, radii);
     check_f32(v_colors, "v_colors");
     TORCH_CHECK(v_colors.numel() == in.C * in.N * 3, "v_colors must be [C, N, 3]");
     const std::vector<Camera> cams = cameras(viewmats, torch::Tensor(), 0, 0);
-    auto v_coeffs = torch::zeros_like(coeffs);
-    auto v_means = torch::zeros({in.N, 3}, means.options());
-    const float *m = means.data_ptr<float>(), *co = coeffs.data_ptr<float>(), *g = v_colors.data_ptr<float>();
+    // every element is written by its Gaussian's task (zeros included): no separate zero-fill pass
+    auto v_dc = torch::empty_like(dc);
+    auto v_rest = torch::empty_like(rest);
+    auto v_means = torch::empty({in.N, 3}, means.options());
+    const float *m = means.data_ptr<float>(), *cdc = dc.data_ptr<float>(), *crest = rest.data_ptr<float>();
+    const float *g = v_colors.data_ptr<float>();
     const int32_t *r = radii.data_ptr<int32_t>();
-    float *vc = v_coeffs.data_ptr<float>(), *vm = v_means.data_ptr<float>();
+    float *vdc = v_dc.data_ptr<float>(), *vrest = v_rest.data_ptr<float>(), *vm = v_means.data_ptr<float>();
     at::parallel_for(0, in.N, kGrain, [&](int64_t begin, int64_t end) {
         float Y[16], dY[16][3];
         for (int64_t n = begin; n < end; ++n) {
-            const float *cn = co + n * in.K * 3;
-            float *vcn = vc + n * in.K * 3;
+            const float *dn = cdc + 3 * n, *rn = crest + n * in.R * 3;
+            float vc[16][3] = {{0}};  // gradient of the k_used coefficients read
+            float vmn[3] = {0, 0, 0};
             for (int64_t c = 0; c < in.C; ++c) {
                 const int64_t i = c * in.N + n;
                 if (r[i] <= 0) continue;
@@ -436,24 +450,29 @@ std::vector<torch::Tensor> sh_bwd(const torch::Tensor &means, const torch::Tenso
                 float gv[3];  // upstream gradient, zero where the clamp at 0 bound
                 for (int ch = 0; ch < 3; ++ch) {
                     float v = 0.0f;
-                    for (int k = 0; k < in.k_used; ++k) v += Y[k] * cn[3 * k + ch];
+                    for (int k = 0; k < in.k_used; ++k) v += Y[k] * coeff(dn, rn, k, ch);
                     gv[ch] = (v + 0.5f >= 0.0f) ? g[3 * i + ch] : 0.0f;
                 }
                 float v_u[3] = {0, 0, 0};
                 for (int k = 0; k < in.k_used; ++k) {
                     float dot = 0.0f;
                     for (int ch = 0; ch < 3; ++ch) {
-                        vcn[3 * k + ch] += Y[k] * gv[ch];
-                        dot += cn[3 * k + ch] * gv[ch];
+                        vc[k][ch] += Y[k] * gv[ch];
+                        dot += coeff(dn, rn, k, ch) * gv[ch];
                     }
                     for (int j = 0; j < 3; ++j) v_u[j] += dot * dY[k][j];
                 }
                 const float along = u[0] * v_u[0] + u[1] * v_u[1] + u[2] * v_u[2];
-                for (int j = 0; j < 3; ++j) vm[3 * n + j] += (v_u[j] - u[j] * along) * inv;
+                for (int j = 0; j < 3; ++j) vmn[j] += (v_u[j] - u[j] * along) * inv;
             }
+            for (int ch = 0; ch < 3; ++ch) vdc[3 * n + ch] = vc[0][ch];
+            float *vrn = vrest + n * in.R * 3;
+            for (int64_t k = 1; k <= in.R; ++k)
+                for (int ch = 0; ch < 3; ++ch) vrn[3 * (k - 1) + ch] = k < in.k_used ? vc[k][ch] : 0.0f;
+            for (int j = 0; j < 3; ++j) vm[3 * n + j] = vmn[j];
         }
     });
-    return {v_coeffs, v_means};
+    return {v_dc, v_rest, v_means};
 }
 
 }  // namespace stealth_ns

@@ -22,16 +22,17 @@ std::vector<torch::Tensor> project_bwd(
     const torch::Tensor &v_conics
 );
 
+// SH coefficients are given as dc [N,3] (degree 0) and rest [N,K-1,3] (degrees 1..3), as nerfstudio stores them.
 // colours [C,N,3] = max(SH(degree, means - camera centre, coeffs) + 0.5, 0); 0 where radius is 0.
 torch::Tensor sh_fwd(
-    const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &coeffs, int64_t degree,
-    const torch::Tensor &radii
+    const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &dc, const torch::Tensor &rest,
+    int64_t degree, const torch::Tensor &radii
 );
 
-// (v_coeffs [N,K,3], v_means [N,3])
+// (v_dc [N,3], v_rest [N,K-1,3], v_means [N,3])
 std::vector<torch::Tensor> sh_bwd(
-    const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &coeffs, int64_t degree,
-    const torch::Tensor &radii, const torch::Tensor &v_colors
+    const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &dc, const torch::Tensor &rest,
+    int64_t degree, const torch::Tensor &radii, const torch::Tensor &v_colors
 );
 
 }  // namespace stealth_ns

@@ -48,6 +48,7 @@
 #include <torch/extension.h>
 
 #include "project_cpu.h"
+#include "ssim_cpu.h"
 
 #include <ATen/Parallel.h>
 #include <omp.h>
@@ -944,8 +945,12 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("project_bwd", &stealth_ns::project_bwd, py::arg("means"), py::arg("quats"), py::arg("scales"),
           py::arg("viewmats"), py::arg("Ks"), py::arg("width"), py::arg("height"), py::arg("eps2d"),
           py::arg("radii"), py::arg("v_means2d"), py::arg("v_depths"), py::arg("v_conics"));
-    m.def("sh_fwd", &stealth_ns::sh_fwd, py::arg("means"), py::arg("viewmats"), py::arg("coeffs"),
-          py::arg("degree"), py::arg("radii"));
-    m.def("sh_bwd", &stealth_ns::sh_bwd, py::arg("means"), py::arg("viewmats"), py::arg("coeffs"),
-          py::arg("degree"), py::arg("radii"), py::arg("v_colors"));
+    m.def("sh_fwd", &stealth_ns::sh_fwd, py::arg("means"), py::arg("viewmats"), py::arg("sh_dc"),
+          py::arg("sh_rest"), py::arg("degree"), py::arg("radii"));
+    m.def("sh_bwd", &stealth_ns::sh_bwd, py::arg("means"), py::arg("viewmats"), py::arg("sh_dc"),
+          py::arg("sh_rest"), py::arg("degree"), py::arg("radii"), py::arg("v_colors"));
+    m.def("ssim_fwd", &stealth_ns::ssim_fwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("C1"),
+          py::arg("C2"), py::arg("need_grad"));
+    m.def("ssim_bwd", &stealth_ns::ssim_bwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("dmaps"),
+          py::arg("v_planes"));
 }

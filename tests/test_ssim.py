@@ -1,0 +1,68 @@
+"""The compiled SSIM (training loss) against its reference, pytorch_msssim."""
+
+import pytest
+import torch
+from pytorch_msssim import SSIM as ReferenceSSIM
+
+from stealth_ns.raster import cpp_backend
+from stealth_ns.ssim import SSIM
+
+pytestmark = pytest.mark.skipif(
+    cpp_backend.load_extension() is None, reason="compiled CPU module unavailable"
+)
+
+
+def _images(shape, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(shape, generator=g)
+    y = (x + 0.2 * torch.randn(shape, generator=g)).clamp(0, 1)  # correlated, as a render and its target
+    return x, y
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 96, 128), (2, 3, 23, 41), (1, 3, 11, 11)])
+@pytest.mark.parametrize("size_average", [True, False])
+def test_value_and_gradient_match_pytorch_msssim(shape, size_average):
+    x, y = _images(shape)
+    ours, ref = (
+        SSIM(data_range=1.0, size_average=size_average, channel=3),
+        ReferenceSSIM(data_range=1.0, size_average=size_average, channel=3),
+    )
+    y1, y2 = y.clone().requires_grad_(True), y.clone().requires_grad_(True)
+    assert ours._compiled_path(x, y1)
+    a, b = ours(x, y1), ref(x, y2)
+    torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    w = torch.linspace(0.5, 1.5, a.numel()).reshape(a.shape)  # a non-uniform upstream gradient
+    (1 - a * w).sum().backward()
+    (1 - b * w).sum().backward()
+    assert y2.grad.abs().max() > 0
+    torch.testing.assert_close(y1.grad, y2.grad, rtol=1e-4, atol=1e-5 * y2.grad.abs().max().item())
+
+
+def test_identical_images_give_one_and_no_gradient_step():
+    x, _ = _images((1, 3, 30, 30))
+    y = x.clone().requires_grad_(True)
+    value = SSIM(data_range=1.0, channel=3)(x, y)
+    assert value.item() == pytest.approx(1.0, abs=1e-5)
+    value.backward()
+    assert y.grad.abs().max() < 1e-4  # SSIM is maximal at Y = X
+
+
+def test_falls_back_to_the_reference_where_the_kernel_does_not_apply():
+    ours = SSIM(data_range=1.0, channel=3)
+    x, y = _images((1, 3, 8, 40))  # smaller than the window: pytorch_msssim skips that dimension
+    assert not ours._compiled_path(x, y)
+    with pytest.warns(UserWarning, match="Skipping Gaussian Smoothing"):
+        torch.testing.assert_close(ours(x, y), ReferenceSSIM(data_range=1.0, channel=3)(x, y))
+    x2, y2 = _images((1, 3, 20, 20))
+    assert not ours._compiled_path(x2.requires_grad_(True), y2)  # a gradient for X: the reference
+    assert not ours._compiled_path(x2.double(), y2.double())
+
+
+def test_kernel_rejects_bad_inputs():
+    ext = cpp_backend.load_extension()
+    x, y = _images((1, 3, 20, 20))
+    win = torch.ones(11) / 11
+    with pytest.raises(RuntimeError, match="smaller than the window"):
+        ext.ssim_fwd(x[..., :10].contiguous(), y[..., :10].contiguous(), win, 1e-4, 9e-4, False)
+    with pytest.raises(RuntimeError, match="same shape"):
+        ext.ssim_fwd(x, y[:, :2].contiguous(), win, 1e-4, 9e-4, False)
