@@ -29,7 +29,7 @@
 // check both agree bitwise).  Per-pixel state (T, colour planes, last index,
 // done mask; in the backward T, upstream gradients, accumulated colour)
 // lives in per-thread tile scratch (structure of arrays).  Per-Gaussian data
-// (conic, opacity, footprint) is precomputed once in a parallel pass.
+// (conic, opacity, footprint) is precomputed in a parallel pass, for the Gaussians some tile list holds.
 // Memory: O(image + C*N + n_isects) (+ per-thread tile scratch), never
 // pairs x pixels.
 //
@@ -58,6 +58,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <numeric>
 #include <vector>
 
@@ -250,15 +251,18 @@ inline void prep_span(const GPrep &g, float dy, int tx0, int tx1, int &j0, int &
     if (j1 < j0) j1 = j0;
 }
 
-// Parallel pre-pass over the C*N Gaussians.
-std::vector<GPrep> prepare(
+// Parallel pre-pass over the Gaussians that some tile list holds (in training often under half of
+// the C*N: the rest have radius 0).  Rows of the others are left uninitialised: nothing reads them.
+std::unique_ptr<GPrep[]> prepare(
     int64_t CN, const float *means2d, const float *conics, const float *opacities, float coord_scale, bool cull,
-    int n_threads
+    const int32_t *flatten_ids, int64_t n_isects, int n_threads
 ) {
-    std::vector<GPrep> prep((size_t)CN);
+    std::unique_ptr<GPrep[]> prep(new GPrep[(size_t)CN]);
+    std::vector<uint8_t> listed((size_t)CN, 0);
+    for (int64_t k = 0; k < n_isects; ++k) listed[flatten_ids[k]] = 1;
 #pragma omp parallel for schedule(static) num_threads(n_threads)
     for (int64_t i = 0; i < CN; ++i)
-        prep[i] = make_prep(means2d + 2 * i, conics + 3 * i, opacities[i], coord_scale, cull);
+        if (listed[i]) prep[i] = make_prep(means2d + 2 * i, conics + 3 * i, opacities[i], coord_scale, cull);
     return prep;
 }
 
@@ -292,9 +296,10 @@ void fwd_impl(
     float *__restrict__ out_colors, float *__restrict__ out_alphas, float *__restrict__ out_T,
     int32_t *__restrict__ out_last, int n_threads
 ) {
-    const std::vector<GPrep> prep_v =
-        prepare(C * N, means2d, conics, opacities, (float)(g.W + g.H), cull, n_threads);
-    const GPrep *__restrict__ prep = prep_v.data();
+    const std::unique_ptr<GPrep[]> prep_v = prepare(
+        C * N, means2d, conics, opacities, (float)(g.W + g.H), cull, flatten_ids, n_isects, n_threads
+    );
+    const GPrep *__restrict__ prep = prep_v.get();
     const int D = DT > 0 ? DT : Drt;
     const int ts = g.ts;
     const int stride = (ts + VW - 1) / VW * VW;  // padded row length of the per-tile state
@@ -420,9 +425,10 @@ void bwd_impl(
     float *__restrict__ thread_buf,  // mode 2: [n_threads, C*N, 6 + D] zero-initialised
     int n_threads
 ) {
-    const std::vector<GPrep> prep_v =
-        prepare(C * N, means2d, conics, opacities, (float)(g.W + g.H), cull, n_threads);
-    const GPrep *__restrict__ prep = prep_v.data();
+    const std::unique_ptr<GPrep[]> prep_v = prepare(
+        C * N, means2d, conics, opacities, (float)(g.W + g.H), cull, flatten_ids, n_isects, n_threads
+    );
+    const GPrep *__restrict__ prep = prep_v.get();
     const int D = DT > 0 ? DT : Drt;
     const int S = 6 + D;  // per-Gaussian gradient record: xy(2) conic(3) opacity(1) rgb(D)
     const int ts = g.ts;
