@@ -569,7 +569,7 @@ class StealthSplatModel(SplatfactoModel):
         viewmat, K, W, H = self._camera_geometry(camera, c2w)
         self.last_size = (H, W)
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
-        colors: Tensor | tuple[Tensor, Tensor]
+        colors: Tensor | SHCoefficients
         if self.config.sh_degree > 0:
             sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
             colors = (g["features_dc"], g["features_rest"])  # split: the compiled kernels read it as stored

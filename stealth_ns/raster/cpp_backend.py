@@ -52,7 +52,7 @@ __all__ = [
 EXTENSION_NAME = "stealth_ns_raster_cpu"
 _CSRC = Path(__file__).resolve().parent / "csrc"
 _SOURCES = (_CSRC / "rasterize_cpu.cpp", _CSRC / "project_cpu.cpp", _CSRC / "ssim_cpu.cpp")
-_HEADERS = (_CSRC / "project_cpu.h", _CSRC / "ssim_cpu.h")
+_HEADERS = (_CSRC / "project_cpu.h", _CSRC / "ssim_cpu.h", _CSRC / "tensor_checks.h")
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that
 # decide which (pixel, Gaussian) pairs pass the alpha >= 1/255 test, so forward and backward could
 # disagree.  -ffp-contract=off for the same reason (no FMA contraction that may differ between the

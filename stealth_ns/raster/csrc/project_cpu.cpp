@@ -13,6 +13,7 @@
 // Gaussian per task: deterministic, whatever the thread count.
 
 #include "project_cpu.h"
+#include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
 
@@ -24,12 +25,6 @@ namespace {
 
 constexpr int64_t kGrain = 512;
 
-void check_f32(const torch::Tensor &t, const char *name) {
-    TORCH_CHECK(t.device().is_cpu(), name, " must be a CPU tensor");
-    TORCH_CHECK(t.scalar_type() == torch::kFloat32, name, " must be float32");
-    TORCH_CHECK(t.is_contiguous(), name, " must be contiguous");
-}
-
 struct Camera {
     float R[3][3];
     float t[3];
@@ -39,13 +34,13 @@ struct Camera {
 };
 
 std::vector<Camera> cameras(const torch::Tensor &viewmats, const torch::Tensor &Ks, int64_t width, int64_t height) {
-    check_f32(viewmats, "viewmats");
+    check_cpu_f32(viewmats, "viewmats");
     TORCH_CHECK(viewmats.dim() == 3 && viewmats.size(1) == 4 && viewmats.size(2) == 4, "viewmats must be [C, 4, 4]");
     const int64_t C = viewmats.size(0);
     const float *v = viewmats.data_ptr<float>();
     const float *k = nullptr;
     if (Ks.defined() && Ks.numel() > 0) {
-        check_f32(Ks, "Ks");
+        check_cpu_f32(Ks, "Ks");
         TORCH_CHECK(Ks.dim() == 3 && Ks.size(0) == C && Ks.size(1) == 3 && Ks.size(2) == 3, "Ks must be [C, 3, 3]");
         k = Ks.data_ptr<float>();
     }
@@ -260,11 +255,10 @@ struct ShInputs {
 
 ShInputs check_sh(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &dc,
                   const torch::Tensor &rest, int64_t degree, const torch::Tensor &radii) {
-    check_f32(means, "means");
-    check_f32(dc, "sh_dc");
-    check_f32(rest, "sh_rest");
-    TORCH_CHECK(radii.device().is_cpu() && radii.scalar_type() == torch::kInt32 && radii.is_contiguous(),
-                "radii must be a contiguous CPU int32 tensor");
+    check_cpu_f32(means, "means");
+    check_cpu_f32(dc, "sh_dc");
+    check_cpu_f32(rest, "sh_rest");
+    check_cpu_i32(radii, "radii");
     TORCH_CHECK(degree >= 0 && degree <= 3, "sh degree must be in 0..3");
     const int64_t N = means.size(0), C = viewmats.size(0);
     TORCH_CHECK(dc.dim() == 2 && dc.size(0) == N && dc.size(1) == 3, "sh_dc must be [N, 3]");
@@ -286,9 +280,9 @@ std::vector<torch::Tensor> project_fwd(const torch::Tensor &means, const torch::
                                        const torch::Tensor &scales, const torch::Tensor &viewmats,
                                        const torch::Tensor &Ks, int64_t width, int64_t height, double eps2d,
                                        double near_plane, double far_plane, double radius_clip) {
-    check_f32(means, "means");
-    check_f32(quats, "quats");
-    check_f32(scales, "scales");
+    check_cpu_f32(means, "means");
+    check_cpu_f32(quats, "quats");
+    check_cpu_f32(scales, "scales");
     const int64_t N = means.size(0);
     TORCH_CHECK(means.dim() == 2 && means.size(1) == 3, "means must be [N, 3]");
     TORCH_CHECK(quats.dim() == 2 && quats.size(0) == N && quats.size(1) == 4, "quats must be [N, 4]");
@@ -327,9 +321,9 @@ std::vector<torch::Tensor> project_bwd(const torch::Tensor &means, const torch::
                                        const torch::Tensor &Ks, int64_t width, int64_t height, double eps2d,
                                        const torch::Tensor &radii, const torch::Tensor &v_means2d,
                                        const torch::Tensor &v_depths, const torch::Tensor &v_conics) {
-    check_f32(v_means2d, "v_means2d");
-    check_f32(v_depths, "v_depths");
-    check_f32(v_conics, "v_conics");
+    check_cpu_f32(v_means2d, "v_means2d");
+    check_cpu_f32(v_depths, "v_depths");
+    check_cpu_f32(v_conics, "v_conics");
     const std::vector<Camera> cams = cameras(viewmats, Ks, width, height);
     const int64_t C = (int64_t)cams.size(), N = means.size(0);
     TORCH_CHECK(radii.numel() == C * N && v_means2d.numel() == 2 * C * N && v_depths.numel() == C * N &&
@@ -421,7 +415,7 @@ std::vector<torch::Tensor> sh_bwd(const torch::Tensor &means, const torch::Tenso
                                   const torch::Tensor &dc, const torch::Tensor &rest, int64_t degree,
                                   const torch::Tensor &radii, const torch::Tensor &v_colors) {
     const ShInputs in = check_sh(means, viewmats, dc, rest, degree, radii);
-    check_f32(v_colors, "v_colors");
+    check_cpu_f32(v_colors, "v_colors");
     TORCH_CHECK(v_colors.numel() == in.C * in.N * 3, "v_colors must be [C, N, 3]");
     const std::vector<Camera> cams = cameras(viewmats, torch::Tensor(), 0, 0);
     // every element is written by its Gaussian's task (zeros included): no separate zero-fill pass

@@ -49,6 +49,7 @@
 
 #include "project_cpu.h"
 #include "ssim_cpu.h"
+#include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
 #include <omp.h>
@@ -633,17 +634,8 @@ void bwd_impl(
 // ---------------------------------------------------------------------------
 // Argument checks / dispatch
 // ---------------------------------------------------------------------------
-void check_cpu_f32(const torch::Tensor &t, const char *name) {
-    TORCH_CHECK(t.device().is_cpu(), name, " must be a CPU tensor");
-    TORCH_CHECK(t.scalar_type() == torch::kFloat32, name, " must be float32");
-    TORCH_CHECK(t.is_contiguous(), name, " must be contiguous");
-}
-
-void check_cpu_i32(const torch::Tensor &t, const char *name) {
-    TORCH_CHECK(t.device().is_cpu(), name, " must be a CPU tensor");
-    TORCH_CHECK(t.scalar_type() == torch::kInt32, name, " must be int32");
-    TORCH_CHECK(t.is_contiguous(), name, " must be contiguous");
-}
+using stealth_ns::check_cpu_f32;
+using stealth_ns::check_cpu_i32;
 
 // Out-of-range offsets / ids would make the kernels read out of bounds: check them
 // (O(tiles + n_isects), negligible next to the rasterization).

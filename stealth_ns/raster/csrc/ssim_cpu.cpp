@@ -10,6 +10,7 @@
 // One task per plane (a plane's sums run in a fixed order: deterministic whatever the thread count).
 
 #include "ssim_cpu.h"
+#include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
 
@@ -19,8 +20,7 @@ namespace stealth_ns {
 namespace {
 
 void check_image(const torch::Tensor &t, const char *name) {
-    TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == torch::kFloat32 && t.is_contiguous(), name,
-                " must be a contiguous float32 CPU tensor");
+    check_cpu_f32(t, name);
     TORCH_CHECK(t.dim() == 4, name, " must be [B, C, H, W]");
 }
 
@@ -88,9 +88,8 @@ Dims check(const torch::Tensor &X, const torch::Tensor &Y, const torch::Tensor &
     check_image(X, "X");
     check_image(Y, "Y");
     TORCH_CHECK(X.sizes() == Y.sizes(), "X and Y must have the same shape");
-    TORCH_CHECK(win.device().is_cpu() && win.scalar_type() == torch::kFloat32 && win.is_contiguous() &&
-                    win.dim() == 1,
-                "win must be a contiguous float32 CPU vector");
+    check_cpu_f32(win, "win");
+    TORCH_CHECK(win.dim() == 1, "win must be a vector");
     const int64_t K = win.size(0), H = X.size(2), W = X.size(3);
     TORCH_CHECK(H >= K && W >= K, "the image (", H, " x ", W, ") is smaller than the window (", K, ")");
     return {X.size(0) * X.size(1), H, W, K, H - K + 1, W - K + 1};
@@ -147,10 +146,10 @@ torch::Tensor ssim_bwd(const torch::Tensor &X, const torch::Tensor &Y, const tor
                        const torch::Tensor &dmaps, const torch::Tensor &v_planes) {
     const Dims d = check(X, Y, win);
     const int64_t HW = d.H * d.W, HWo = d.Ho * d.Wo;
-    TORCH_CHECK(dmaps.is_contiguous() && dmaps.numel() == d.planes * 3 * HWo, "dmaps must be [planes, 3, H', W']");
-    TORCH_CHECK(v_planes.is_contiguous() && v_planes.scalar_type() == torch::kFloat32 &&
-                    v_planes.numel() == d.planes,
-                "v_planes must be [B, C] float32");
+    check_cpu_f32(dmaps, "dmaps");
+    check_cpu_f32(v_planes, "v_planes");
+    TORCH_CHECK(dmaps.numel() == d.planes * 3 * HWo, "dmaps must be [planes, 3, H', W']");
+    TORCH_CHECK(v_planes.numel() == d.planes, "v_planes must be [B, C]");
     auto v_Y = torch::empty_like(Y);
     const float *xp = X.data_ptr<float>(), *yp = Y.data_ptr<float>(), *w = win.data_ptr<float>();
     const float *dp = dmaps.data_ptr<float>(), *vp = v_planes.data_ptr<float>();
