@@ -10,7 +10,14 @@
 //   colour = max(sum_k Y_k(d) c_k + 0.5, 0) with d the normalised direction camera centre -> mean.
 // As in gsplat, a Gaussian with radius 0 in a camera gets colour 0 and no gradient from it (the
 // rasterizer never reads it).  Each Gaussian's backward sums its cameras in a fixed order, one
-// Gaussian per task: deterministic, whatever the thread count.
+// Gaussian per lane: deterministic, whatever the thread count.
+//
+// Vectorised across Gaussians: the per-Gaussian math is written once on 16-lane vectors (GCC vector
+// extensions: one AVX-512 register, two AVX2 ones, four NEON ones), one Gaussian per lane, gathered
+// from and scattered to the [N, 3|4] rows in blocks of 16.  Every lane evaluates the same float
+// expressions in the same order as a scalar loop would (no FMA contraction, no fast-math; sqrt and
+// division are correctly rounded), so the results do not depend on the lane a Gaussian lands in.
+// Branches become selects: masked-out lanes compute and are discarded, never stored.
 
 #include "project_cpu.h"
 #include "tensor_checks.h"
@@ -19,11 +26,52 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 namespace stealth_ns {
 namespace {
 
 constexpr int64_t kGrain = 512;
+
+constexpr int kLanes = 16;
+typedef float vf __attribute__((vector_size(4 * kLanes)));
+typedef int32_t vi __attribute__((vector_size(4 * kLanes)));  // masks: -1 (true) / 0 per lane
+
+inline vf vmax(vf a, vf b) { return a < b ? b : a; }  // std::max(a, b), lane-wise
+inline vf vmin(vf a, vf b) { return b < a ? b : a; }  // std::min(a, b), lane-wise
+inline vf vsqrt(vf x) {
+    vf r;
+    for (int l = 0; l < kLanes; ++l) r[l] = std::sqrt(x[l]);  // one vsqrtps (-fno-math-errno)
+    return r;
+}
+inline vf vceil(vf x) {
+    vf r;
+    for (int l = 0; l < kLanes; ++l) r[l] = std::ceil(x[l]);
+    return r;
+}
+inline vf vset(float x) {
+    vf r;
+    for (int l = 0; l < kLanes; ++l) r[l] = x;  // exact broadcast (keeps the sign of -0)
+    return r;
+}
+inline vf zeros() { return vf{}; }
+
+// Lanes l < L of a block: floats [0, width) of row idx[l] of `src` (rows `stride` floats apart), as
+// `width` vectors.  Lanes >= L repeat lane 0 (finite inputs, results never stored).
+inline void gather(const float *src, int64_t stride, int width, const int64_t *idx, int L, vf *out) {
+    const float *rows[kLanes];
+    for (int l = 0; l < kLanes; ++l) rows[l] = src + stride * idx[l < L ? l : 0];
+    for (int j = 0; j < width; ++j)
+        for (int l = 0; l < kLanes; ++l) out[j][l] = rows[l][j];
+}
+
+// The inverse of gather for lanes l < L.
+inline void scatter(const vf *in, int64_t stride, int width, const int64_t *idx, int L, float *dst) {
+    for (int l = 0; l < L; ++l) {
+        float *row = dst + stride * idx[l];
+        for (int j = 0; j < width; ++j) row[j] = in[j][l];
+    }
+}
 
 struct Camera {
     float R[3][3];
@@ -68,75 +116,79 @@ std::vector<Camera> cameras(const torch::Tensor &viewmats, const torch::Tensor &
 }
 
 // Rotation matrix of q / max(|q|, 1e-12) (torch's F.normalize); qn, inv_norm kept for the backward.
-inline void quat_to_rot(const float *q, float qn[4], float &inv_norm, float R[3][3]) {
-    const float norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    inv_norm = 1.0f / std::max(norm, 1e-12f);
+inline void quat_to_rot(const vf q[4], vf qn[4], vf &inv_norm, vf R[3][3]) {
+    const vf norm = vsqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    inv_norm = 1.0f / vmax(norm, vset(1e-12f));
     for (int i = 0; i < 4; ++i) qn[i] = q[i] * inv_norm;
-    const float w = qn[0], x = qn[1], y = qn[2], z = qn[3];
-    R[0][0] = 1 - 2 * (y * y + z * z), R[0][1] = 2 * (x * y - w * z), R[0][2] = 2 * (x * z + w * y);
-    R[1][0] = 2 * (x * y + w * z), R[1][1] = 1 - 2 * (x * x + z * z), R[1][2] = 2 * (y * z - w * x);
-    R[2][0] = 2 * (x * z - w * y), R[2][1] = 2 * (y * z + w * x), R[2][2] = 1 - 2 * (x * x + y * y);
+    const vf w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+    R[0][0] = 1.0f - 2.0f * (y * y + z * z), R[0][1] = 2.0f * (x * y - w * z), R[0][2] = 2.0f * (x * z + w * y);
+    R[1][0] = 2.0f * (x * y + w * z), R[1][1] = 1.0f - 2.0f * (x * x + z * z), R[1][2] = 2.0f * (y * z - w * x);
+    R[2][0] = 2.0f * (x * z - w * y), R[2][1] = 2.0f * (y * z + w * x), R[2][2] = 1.0f - 2.0f * (x * x + y * y);
 }
 
 // Everything the projection of one Gaussian into one camera computes (the backward recomputes it).
 struct Projected {
-    float p[3];       // camera-space mean
-    float Sc[3][3];   // camera-space covariance
-    float J[2][3];    // projection Jacobian (at the clamped point)
-    float ux, uy;     // clamped tx/tz, ty/tz
-    bool x_free, y_free;  // the clamp did not bind
-    float a, b, c, det;
-    bool det_free;    // the determinant was not clamped
-    float mean2d[2];
-    int radius;
+    vf p[3];          // camera-space mean
+    vf Sc[3][3];      // camera-space covariance
+    vf J[2][3];       // projection Jacobian (at the clamped point)
+    vf ux, uy;        // clamped tx/tz, ty/tz
+    vi x_free, y_free;  // the clamp did not bind
+    vf a, b, c, det;
+    vi det_free;      // the determinant was not clamped
+    vf mean2d[2];
+    vi radius;
 };
 
-inline void project_one(const Camera &cam, const float *mean, const float S[3][3], int64_t width, int64_t height,
-                        float eps2d, float near_plane, float far_plane, float radius_clip, Projected &o) {
+struct Clip {
+    float eps2d, near_plane, far_plane, radius_clip;
+};
+
+inline void project_one(const Camera &cam, const vf mean[3], const vf S[3][3], int64_t width, int64_t height,
+                        const Clip &clip, Projected &o) {
     for (int i = 0; i < 3; ++i)
         o.p[i] = cam.R[i][0] * mean[0] + cam.R[i][1] * mean[1] + cam.R[i][2] * mean[2] + cam.t[i];
-    float RS[3][3];  // R S
+    vf RS[3][3];  // R S
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) RS[i][j] = cam.R[i][0] * S[0][j] + cam.R[i][1] * S[1][j] + cam.R[i][2] * S[2][j];
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j)
             o.Sc[i][j] = RS[i][0] * cam.R[j][0] + RS[i][1] * cam.R[j][1] + RS[i][2] * cam.R[j][2];
-    const float tx = o.p[0], ty = o.p[1], tz = o.p[2];
-    const float rx = tx / tz, ry = ty / tz;
-    o.ux = std::min(std::max(rx, -cam.lim_x_neg), cam.lim_x_pos);
-    o.uy = std::min(std::max(ry, -cam.lim_y_neg), cam.lim_y_pos);
-    o.x_free = rx >= -cam.lim_x_neg && rx <= cam.lim_x_pos;
-    o.y_free = ry >= -cam.lim_y_neg && ry <= cam.lim_y_pos;
-    const float txc = tz * o.ux, tyc = tz * o.uy;
-    o.J[0][0] = cam.fx / tz, o.J[0][1] = 0.0f, o.J[0][2] = -cam.fx * txc / (tz * tz);
-    o.J[1][0] = 0.0f, o.J[1][1] = cam.fy / tz, o.J[1][2] = -cam.fy * tyc / (tz * tz);
-    float JS[2][3];
+    const vf tx = o.p[0], ty = o.p[1], tz = o.p[2];
+    const vf rx = tx / tz, ry = ty / tz;
+    o.ux = vmin(vmax(rx, vset(-cam.lim_x_neg)), vset(cam.lim_x_pos));
+    o.uy = vmin(vmax(ry, vset(-cam.lim_y_neg)), vset(cam.lim_y_pos));
+    o.x_free = (rx >= -cam.lim_x_neg) & (rx <= cam.lim_x_pos);
+    o.y_free = (ry >= -cam.lim_y_neg) & (ry <= cam.lim_y_pos);
+    const vf txc = tz * o.ux, tyc = tz * o.uy;
+    o.J[0][0] = cam.fx / tz, o.J[0][1] = zeros(), o.J[0][2] = -cam.fx * txc / (tz * tz);
+    o.J[1][0] = zeros(), o.J[1][1] = cam.fy / tz, o.J[1][2] = -cam.fy * tyc / (tz * tz);
+    vf JS[2][3];
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 3; ++j)
             JS[i][j] = o.J[i][0] * o.Sc[0][j] + o.J[i][1] * o.Sc[1][j] + o.J[i][2] * o.Sc[2][j];
-    float cov[2][2];
+    vf cov[2][2];
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 2; ++j) cov[i][j] = JS[i][0] * o.J[j][0] + JS[i][1] * o.J[j][1] + JS[i][2] * o.J[j][2];
     o.mean2d[0] = cam.fx * tx / tz + cam.cx;
     o.mean2d[1] = cam.fy * ty / tz + cam.cy;
-    o.a = cov[0][0] + eps2d;
+    o.a = cov[0][0] + clip.eps2d;
     o.b = 0.5f * (cov[0][1] + cov[1][0]);
-    o.c = cov[1][1] + eps2d;
-    const float det_raw = o.a * o.c - o.b * o.b;
+    o.c = cov[1][1] + clip.eps2d;
+    const vf det_raw = o.a * o.c - o.b * o.b;
     o.det_free = det_raw >= 1e-10f;
-    o.det = o.det_free ? det_raw : 1e-10f;
-    const float half_trace = 0.5f * (o.a + o.c);
-    const float lam_max = half_trace + std::sqrt(std::max(half_trace * half_trace - o.det, 0.01f));
-    const float radius = std::ceil(3.0f * std::sqrt(lam_max));
-    const bool valid = o.det > 0 && tz > near_plane && tz < far_plane && radius > radius_clip;
-    const bool inside = o.mean2d[0] + radius > 0 && o.mean2d[0] - radius < (float)width &&
-                        o.mean2d[1] + radius > 0 && o.mean2d[1] - radius < (float)height;
-    o.radius = (valid && inside) ? (int)radius : 0;
+    o.det = o.det_free ? det_raw : vset(1e-10f);
+    const vf half_trace = 0.5f * (o.a + o.c);
+    const vf lam_max = half_trace + vsqrt(vmax(half_trace * half_trace - o.det, vset(0.01f)));
+    const vf radius = vceil(3.0f * vsqrt(lam_max));
+    const vi valid = (o.det > 0.0f) & (tz > clip.near_plane) & (tz < clip.far_plane) & (radius > clip.radius_clip);
+    const vi inside = (o.mean2d[0] + radius > 0.0f) & (o.mean2d[0] - radius < (float)width) &
+                      (o.mean2d[1] + radius > 0.0f) & (o.mean2d[1] - radius < (float)height);
+    o.radius = (valid & inside) ? __builtin_convertvector(radius, vi) : vi{};
 }
 
 // Covariance S = M M^T with M = R(q) diag(s).
-inline void covariance(const float *quat, const float *scale, float qn[4], float &inv_norm, float Rq[3][3],
-                       float M[3][3], float S[3][3]) {
+inline void covariance(const vf quat[4], const vf scale[3], vf qn[4], vf &inv_norm, vf Rq[3][3], vf M[3][3],
+                       vf S[3][3]) {
     quat_to_rot(quat, qn, inv_norm, Rq);
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) M[i][j] = Rq[i][j] * scale[j];
@@ -144,34 +196,34 @@ inline void covariance(const float *quat, const float *scale, float qn[4], float
         for (int j = 0; j < 3; ++j) S[i][j] = M[i][0] * M[j][0] + M[i][1] * M[j][1] + M[i][2] * M[j][2];
 }
 
-// Adds the gradient of one camera's outputs to v_p (camera-space mean) and v_Sc (camera covariance).
-inline void project_one_bwd(const Camera &cam, const Projected &o, const float *v_mean2d, float v_depth,
-                            const float *v_conic, float v_p[3], float v_Sc[3][3]) {
-    const float a = o.a, b = o.b, c = o.c, det = o.det;
+// Gradient of one camera's outputs w.r.t. p (camera-space mean) and Sc (camera covariance).
+inline void project_one_bwd(const Camera &cam, const Projected &o, const vf v_mean2d[2], vf v_depth,
+                            const vf v_conic[3], vf v_p[3], vf v_Sc[3][3]) {
+    const vf a = o.a, b = o.b, c = o.c, det = o.det;
     // conic = (c, -b, a) / det
-    const float v_det = o.det_free ? -(v_conic[0] * c - v_conic[1] * b + v_conic[2] * a) / (det * det) : 0.0f;
-    const float v_a = v_conic[2] / det + v_det * c;
-    const float v_b = -v_conic[1] / det - 2.0f * b * v_det;
-    const float v_c = v_conic[0] / det + v_det * a;
-    const float V[2][2] = {{v_a, 0.5f * v_b}, {0.5f * v_b, v_c}};  // gradient of cov2d (symmetric)
-    // cov2d = J Sc J^T:  v_Sc += J^T V J,  v_J = 2 V J Sc
-    float VJ[2][3];
+    const vf v_det = o.det_free ? -(v_conic[0] * c - v_conic[1] * b + v_conic[2] * a) / (det * det) : zeros();
+    const vf v_a = v_conic[2] / det + v_det * c;
+    const vf v_b = -v_conic[1] / det - 2.0f * b * v_det;
+    const vf v_c = v_conic[0] / det + v_det * a;
+    const vf V[2][2] = {{v_a, 0.5f * v_b}, {0.5f * v_b, v_c}};  // gradient of cov2d (symmetric)
+    // cov2d = J Sc J^T:  v_Sc = J^T V J,  v_J = 2 V J Sc
+    vf VJ[2][3];
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 3; ++j) VJ[i][j] = V[i][0] * o.J[0][j] + V[i][1] * o.J[1][j];
     for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 3; ++j) v_Sc[i][j] += o.J[0][i] * VJ[0][j] + o.J[1][i] * VJ[1][j];
-    float v_J[2][3];
+        for (int j = 0; j < 3; ++j) v_Sc[i][j] = o.J[0][i] * VJ[0][j] + o.J[1][i] * VJ[1][j];
+    vf v_J[2][3];
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 3; ++j)
             v_J[i][j] = 2.0f * (VJ[i][0] * o.Sc[0][j] + VJ[i][1] * o.Sc[1][j] + VJ[i][2] * o.Sc[2][j]);
-    const float tx = o.p[0], ty = o.p[1], tz = o.p[2];
-    const float tz2 = tz * tz, tz3 = tz2 * tz;
+    const vf tx = o.p[0], ty = o.p[1], tz = o.p[2];
+    const vf tz2 = tz * tz, tz3 = tz2 * tz;
     // J00 = fx/tz, J11 = fy/tz, J02 = -fx txc/tz^2, J12 = -fy tyc/tz^2 with txc = tz * clamp(tx/tz)
-    const float txc = tz * o.ux, tyc = tz * o.uy;
-    const float dtxc_dtx = o.x_free ? 1.0f : 0.0f, dtyc_dty = o.y_free ? 1.0f : 0.0f;
-    const float dtxc_dtz = o.ux - (o.x_free ? tx / tz : 0.0f);
-    const float dtyc_dtz = o.uy - (o.y_free ? ty / tz : 0.0f);
-    float gx = 0.0f, gy = 0.0f, gz = v_depth;
+    const vf txc = tz * o.ux, tyc = tz * o.uy;
+    const vf dtxc_dtx = o.x_free ? vset(1.0f) : zeros(), dtyc_dty = o.y_free ? vset(1.0f) : zeros();
+    const vf dtxc_dtz = o.ux - (o.x_free ? tx / tz : zeros());
+    const vf dtyc_dtz = o.uy - (o.y_free ? ty / tz : zeros());
+    vf gx = zeros(), gy = zeros(), gz = v_depth;
     gz += -cam.fx / tz2 * v_J[0][0] - cam.fy / tz2 * v_J[1][1];
     gx += -cam.fx / tz2 * dtxc_dtx * v_J[0][2];
     gz += (-cam.fx * dtxc_dtz / tz2 + 2.0f * cam.fx * txc / tz3) * v_J[0][2];
@@ -181,21 +233,21 @@ inline void project_one_bwd(const Camera &cam, const Projected &o, const float *
     gx += cam.fx / tz * v_mean2d[0];
     gy += cam.fy / tz * v_mean2d[1];
     gz += -cam.fx * tx / tz2 * v_mean2d[0] - cam.fy * ty / tz2 * v_mean2d[1];
-    v_p[0] += gx, v_p[1] += gy, v_p[2] += gz;
+    v_p[0] = gx, v_p[1] = gy, v_p[2] = gz;
 }
 
 // Gradient of R(q / |q|) (G = dL/dR) -> dL/dq.
-inline void quat_bwd(const float qn[4], float inv_norm, const float G[3][3], float *v_q) {
-    const float w = qn[0], x = qn[1], y = qn[2], z = qn[3];
-    float v[4];
-    v[0] = 2 * (-z * G[0][1] + y * G[0][2] + z * G[1][0] - x * G[1][2] - y * G[2][0] + x * G[2][1]);
-    v[1] = 2 * (y * G[0][1] + z * G[0][2] + y * G[1][0] - 2 * x * G[1][1] - w * G[1][2] + z * G[2][0] + w * G[2][1] -
-                2 * x * G[2][2]);
-    v[2] = 2 * (-2 * y * G[0][0] + x * G[0][1] + w * G[0][2] + x * G[1][0] + z * G[1][2] - w * G[2][0] +
-                z * G[2][1] - 2 * y * G[2][2]);
-    v[3] = 2 * (-2 * z * G[0][0] - w * G[0][1] + x * G[0][2] + w * G[1][0] - 2 * z * G[1][1] + y * G[1][2] +
-                x * G[2][0] + y * G[2][1]);
-    const float dot = qn[0] * v[0] + qn[1] * v[1] + qn[2] * v[2] + qn[3] * v[3];
+inline void quat_bwd(const vf qn[4], vf inv_norm, const vf G[3][3], vf v_q[4]) {
+    const vf w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+    vf v[4];
+    v[0] = 2.0f * (-z * G[0][1] + y * G[0][2] + z * G[1][0] - x * G[1][2] - y * G[2][0] + x * G[2][1]);
+    v[1] = 2.0f * (y * G[0][1] + z * G[0][2] + y * G[1][0] - 2.0f * x * G[1][1] - w * G[1][2] + z * G[2][0] +
+                   w * G[2][1] - 2.0f * x * G[2][2]);
+    v[2] = 2.0f * (-2.0f * y * G[0][0] + x * G[0][1] + w * G[0][2] + x * G[1][0] + z * G[1][2] - w * G[2][0] +
+                   z * G[2][1] - 2.0f * y * G[2][2]);
+    v[3] = 2.0f * (-2.0f * z * G[0][0] - w * G[0][1] + x * G[0][2] + w * G[1][0] - 2.0f * z * G[1][1] +
+                   y * G[1][2] + x * G[2][0] + y * G[2][1]);
+    const vf dot = qn[0] * v[0] + qn[1] * v[1] + qn[2] * v[2] + qn[3] * v[3];
     for (int i = 0; i < 4; ++i) v_q[i] = (v[i] - qn[i] * dot) * inv_norm;
 }
 
@@ -208,43 +260,46 @@ constexpr float C3[7] = {-0.5900435899266435f, 2.890611442640554f, -0.4570457994
                          -0.4570457994644658f, 1.445305721320277f, -0.5900435899266435f};
 
 // Basis values Y_k(n) for k < (degree + 1)^2 and, when grad is not null, their gradients dY_k/dn.
-inline void sh_basis(int degree, float x, float y, float z, float *Y, float (*grad)[3]) {
-    Y[0] = C0;
-    if (grad) grad[0][0] = grad[0][1] = grad[0][2] = 0.0f;
+inline void sh_basis(int degree, vf x, vf y, vf z, vf *Y, vf (*grad)[3]) {
+    Y[0] = vset(C0);
+    if (grad) grad[0][0] = grad[0][1] = grad[0][2] = zeros();
     if (degree < 1) return;
     Y[1] = -C1 * y, Y[2] = C1 * z, Y[3] = -C1 * x;
     if (grad) {
-        grad[1][0] = 0, grad[1][1] = -C1, grad[1][2] = 0;
-        grad[2][0] = 0, grad[2][1] = 0, grad[2][2] = C1;
-        grad[3][0] = -C1, grad[3][1] = 0, grad[3][2] = 0;
+        grad[1][0] = zeros(), grad[1][1] = vset(-C1), grad[1][2] = zeros();
+        grad[2][0] = zeros(), grad[2][1] = zeros(), grad[2][2] = vset(C1);
+        grad[3][0] = vset(-C1), grad[3][1] = zeros(), grad[3][2] = zeros();
     }
     if (degree < 2) return;
-    const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+    const vf xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
     Y[4] = C2[0] * xy, Y[5] = C2[1] * yz, Y[6] = C2[2] * (2.0f * zz - xx - yy), Y[7] = C2[3] * xz;
     Y[8] = C2[4] * (xx - yy);
     if (grad) {
-        grad[4][0] = C2[0] * y, grad[4][1] = C2[0] * x, grad[4][2] = 0;
-        grad[5][0] = 0, grad[5][1] = C2[1] * z, grad[5][2] = C2[1] * y;
-        grad[6][0] = -2 * C2[2] * x, grad[6][1] = -2 * C2[2] * y, grad[6][2] = 4 * C2[2] * z;
-        grad[7][0] = C2[3] * z, grad[7][1] = 0, grad[7][2] = C2[3] * x;
-        grad[8][0] = 2 * C2[4] * x, grad[8][1] = -2 * C2[4] * y, grad[8][2] = 0;
+        grad[4][0] = C2[0] * y, grad[4][1] = C2[0] * x, grad[4][2] = zeros();
+        grad[5][0] = zeros(), grad[5][1] = C2[1] * z, grad[5][2] = C2[1] * y;
+        grad[6][0] = -2.0f * C2[2] * x, grad[6][1] = -2.0f * C2[2] * y, grad[6][2] = 4.0f * C2[2] * z;
+        grad[7][0] = C2[3] * z, grad[7][1] = zeros(), grad[7][2] = C2[3] * x;
+        grad[8][0] = 2.0f * C2[4] * x, grad[8][1] = -2.0f * C2[4] * y, grad[8][2] = zeros();
     }
     if (degree < 3) return;
-    Y[9] = C3[0] * y * (3 * xx - yy);
+    Y[9] = C3[0] * y * (3.0f * xx - yy);
     Y[10] = C3[1] * xy * z;
-    Y[11] = C3[2] * y * (4 * zz - xx - yy);
-    Y[12] = C3[3] * z * (2 * zz - 3 * xx - 3 * yy);
-    Y[13] = C3[4] * x * (4 * zz - xx - yy);
+    Y[11] = C3[2] * y * (4.0f * zz - xx - yy);
+    Y[12] = C3[3] * z * (2.0f * zz - 3.0f * xx - 3.0f * yy);
+    Y[13] = C3[4] * x * (4.0f * zz - xx - yy);
     Y[14] = C3[5] * z * (xx - yy);
-    Y[15] = C3[6] * x * (xx - 3 * yy);
+    Y[15] = C3[6] * x * (xx - 3.0f * yy);
     if (grad) {
-        grad[9][0] = C3[0] * 6 * xy, grad[9][1] = C3[0] * (3 * xx - 3 * yy), grad[9][2] = 0;
+        grad[9][0] = C3[0] * 6.0f * xy, grad[9][1] = C3[0] * (3.0f * xx - 3.0f * yy), grad[9][2] = zeros();
         grad[10][0] = C3[1] * yz, grad[10][1] = C3[1] * xz, grad[10][2] = C3[1] * xy;
-        grad[11][0] = C3[2] * -2 * xy, grad[11][1] = C3[2] * (4 * zz - xx - 3 * yy), grad[11][2] = C3[2] * 8 * yz;
-        grad[12][0] = C3[3] * -6 * xz, grad[12][1] = C3[3] * -6 * yz, grad[12][2] = C3[3] * (6 * zz - 3 * xx - 3 * yy);
-        grad[13][0] = C3[4] * (4 * zz - 3 * xx - yy), grad[13][1] = C3[4] * -2 * xy, grad[13][2] = C3[4] * 8 * xz;
-        grad[14][0] = C3[5] * 2 * xz, grad[14][1] = C3[5] * -2 * yz, grad[14][2] = C3[5] * (xx - yy);
-        grad[15][0] = C3[6] * (3 * xx - 3 * yy), grad[15][1] = C3[6] * -6 * xy, grad[15][2] = 0;
+        grad[11][0] = C3[2] * -2.0f * xy, grad[11][1] = C3[2] * (4.0f * zz - xx - 3.0f * yy);
+        grad[11][2] = C3[2] * 8.0f * yz;
+        grad[12][0] = C3[3] * -6.0f * xz, grad[12][1] = C3[3] * -6.0f * yz;
+        grad[12][2] = C3[3] * (6.0f * zz - 3.0f * xx - 3.0f * yy);
+        grad[13][0] = C3[4] * (4.0f * zz - 3.0f * xx - yy), grad[13][1] = C3[4] * -2.0f * xy;
+        grad[13][2] = C3[4] * 8.0f * xz;
+        grad[14][0] = C3[5] * 2.0f * xz, grad[14][1] = C3[5] * -2.0f * yz, grad[14][2] = C3[5] * (xx - yy);
+        grad[15][0] = C3[6] * (3.0f * xx - 3.0f * yy), grad[15][1] = C3[6] * -6.0f * xy, grad[15][2] = zeros();
     }
 }
 
@@ -269,9 +324,39 @@ ShInputs check_sh(const torch::Tensor &means, const torch::Tensor &viewmats, con
     return {C, N, rest.size(1), (int)degree, k_used};
 }
 
-// Coefficient k (0 <= k < k_used) of Gaussian n, channel ch: the DC term is stored apart from the rest.
-inline float coeff(const float *dc_n, const float *rest_n, int k, int ch) {
-    return k == 0 ? dc_n[ch] : rest_n[3 * (k - 1) + ch];
+// The n in [begin, end) with radius > 0 in camera `cam` of the [C, N] radii, or in any camera when cam < 0.
+std::vector<int64_t> seen_in(const int32_t *radii, int64_t C, int64_t N, int64_t cam, int64_t begin, int64_t end) {
+    std::vector<int64_t> seen;
+    seen.reserve(end - begin);
+    for (int64_t n = begin; n < end; ++n) {
+        bool any = false;
+        for (int64_t c = cam < 0 ? 0 : cam; c < (cam < 0 ? C : cam + 1); ++c) any = any || radii[c * N + n] > 0;
+        if (any) seen.push_back(n);
+    }
+    return seen;
+}
+
+// The k_used coefficients of a block, coef[3 k + ch] (the DC term is stored apart from the rest).
+inline void gather_coeffs(const ShInputs &in, const float *dc, const float *rest, const int64_t *idx, int L,
+                          vf coef[48]) {
+    gather(dc, 3, 3, idx, L, coef);
+    gather(rest, 3 * in.R, 3 * (in.k_used - 1), idx, L, coef + 3);
+}
+
+// Unit direction u (and 1 / distance) from a camera centre to the means of a block.
+inline void view_dirs(const Camera &cam, const vf mean[3], vf u[3], vf &inv) {
+    vf d[3];
+    for (int j = 0; j < 3; ++j) d[j] = mean[j] - cam.centre[j];
+    inv = 1.0f / vmax(vsqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), vset(1e-12f));
+    for (int j = 0; j < 3; ++j) u[j] = d[j] * inv;
+}
+
+// sum_k Y_k c_k per channel (before the + 0.5 and the clamp).
+inline void sh_sum(const ShInputs &in, const vf *Y, const vf coef[48], vf v[3]) {
+    for (int ch = 0; ch < 3; ++ch) {
+        v[ch] = zeros();
+        for (int k = 0; k < in.k_used; ++k) v[ch] += Y[k] * coef[3 * k + ch];
+    }
 }
 
 }  // namespace
@@ -297,19 +382,27 @@ std::vector<torch::Tensor> project_fwd(const torch::Tensor &means, const torch::
     const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
     int32_t *r_out = radii.data_ptr<int32_t>();
     float *m2_out = means2d.data_ptr<float>(), *d_out = depths.data_ptr<float>(), *c_out = conics.data_ptr<float>();
+    const Clip clip{(float)eps2d, (float)near_plane, (float)far_plane, (float)radius_clip};
     at::parallel_for(0, N, kGrain, [&](int64_t begin, int64_t end) {
-        for (int64_t n = begin; n < end; ++n) {
-            float qn[4], inv_norm, Rq[3][3], M[3][3], S[3][3];
-            covariance(q + 4 * n, s + 3 * n, qn, inv_norm, Rq, M, S);
+        int64_t idx[kLanes];
+        for (int64_t n0 = begin; n0 < end; n0 += kLanes) {
+            const int L = (int)std::min<int64_t>(kLanes, end - n0);
+            for (int l = 0; l < kLanes; ++l) idx[l] = n0 + l;
+            vf mean[3], quat[4], scale[3], qn[4], inv_norm, Rq[3][3], M[3][3], S[3][3];
+            gather(m, 3, 3, idx, L, mean);
+            gather(q, 4, 4, idx, L, quat);
+            gather(s, 3, 3, idx, L, scale);
+            covariance(quat, scale, qn, inv_norm, Rq, M, S);
             for (int64_t c = 0; c < C; ++c) {
                 Projected o;
-                project_one(cams[c], m + 3 * n, S, width, height, (float)eps2d, (float)near_plane,
-                            (float)far_plane, (float)radius_clip, o);
-                const int64_t i = c * N + n;
-                r_out[i] = o.radius;
-                m2_out[2 * i] = o.mean2d[0], m2_out[2 * i + 1] = o.mean2d[1];
-                d_out[i] = o.p[2];
-                c_out[3 * i] = o.c / o.det, c_out[3 * i + 1] = -o.b / o.det, c_out[3 * i + 2] = o.a / o.det;
+                project_one(cams[c], mean, S, width, height, clip, o);
+                const vf conic[3] = {o.c / o.det, -o.b / o.det, o.a / o.det};
+                const int64_t i0 = c * N + n0;
+                for (int l = 0; l < L; ++l) r_out[i0 + l] = o.radius[l], d_out[i0 + l] = o.p[2][l];
+                int64_t rows[kLanes];
+                for (int l = 0; l < kLanes; ++l) rows[l] = i0 + l;
+                scatter(o.mean2d, 2, 2, rows, L, m2_out);
+                scatter(conic, 3, 3, rows, L, c_out);
             }
         }
     });
@@ -329,50 +422,72 @@ std::vector<torch::Tensor> project_bwd(const torch::Tensor &means, const torch::
     TORCH_CHECK(radii.numel() == C * N && v_means2d.numel() == 2 * C * N && v_depths.numel() == C * N &&
                     v_conics.numel() == 3 * C * N,
                 "gradients must be [C, N, ...]");
-    auto v_means = torch::zeros({N, 3}, means.options());
-    auto v_quats = torch::zeros({N, 4}, means.options());
-    auto v_scales = torch::zeros({N, 3}, means.options());
+    auto v_means = torch::empty({N, 3}, means.options());
+    auto v_quats = torch::empty({N, 4}, means.options());
+    auto v_scales = torch::empty({N, 3}, means.options());
     const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
     const int32_t *r = radii.data_ptr<int32_t>();
     const float *g2 = v_means2d.data_ptr<float>(), *gd = v_depths.data_ptr<float>(), *gc = v_conics.data_ptr<float>();
     float *vm = v_means.data_ptr<float>(), *vq = v_quats.data_ptr<float>(), *vs = v_scales.data_ptr<float>();
+    const Clip clip{(float)eps2d, 0.0f, 0.0f, 0.0f};
     at::parallel_for(0, N, kGrain, [&](int64_t begin, int64_t end) {
-        for (int64_t n = begin; n < end; ++n) {
-            bool any = false;
-            for (int64_t c = 0; c < C; ++c) any = any || r[c * N + n] > 0;
-            if (!any) continue;
-            float qn[4], inv_norm, Rq[3][3], M[3][3], S[3][3];
-            covariance(q + 4 * n, s + 3 * n, qn, inv_norm, Rq, M, S);
-            float v_S[3][3] = {{0}};
+        // each task zero-fills its own rows (in cache), then does the Gaussians some camera sees
+        std::fill(vm + 3 * begin, vm + 3 * end, 0.0f);
+        std::fill(vq + 4 * begin, vq + 4 * end, 0.0f);
+        std::fill(vs + 3 * begin, vs + 3 * end, 0.0f);
+        const std::vector<int64_t> seen = seen_in(r, C, N, -1, begin, end);
+        for (size_t b0 = 0; b0 < seen.size(); b0 += kLanes) {
+            const int64_t *idx = seen.data() + b0;
+            const int L = (int)std::min<size_t>(kLanes, seen.size() - b0);
+            vf mean[3], quat[4], scale[3], qn[4], inv_norm, Rq[3][3], M[3][3], S[3][3];
+            gather(m, 3, 3, idx, L, mean);
+            gather(q, 4, 4, idx, L, quat);
+            gather(s, 3, 3, idx, L, scale);
+            covariance(quat, scale, qn, inv_norm, Rq, M, S);
+            vf v_mean[3] = {}, v_S[3][3] = {};
             for (int64_t c = 0; c < C; ++c) {
-                const int64_t i = c * N + n;
-                if (r[i] <= 0) continue;
                 const Camera &cam = cams[c];
+                int64_t rows[kLanes];
+                vi vis;
+                for (int l = 0; l < kLanes; ++l) {
+                    rows[l] = c * N + idx[l < L ? l : 0];
+                    vis[l] = r[rows[l]] > 0 ? -1 : 0;
+                }
+                vf v_m2[2], v_con[3], v_d[1];
+                gather(g2, 2, 2, rows, L, v_m2);
+                gather(gc, 3, 3, rows, L, v_con);
+                gather(gd, 1, 1, rows, L, v_d);
                 Projected o;
-                project_one(cam, m + 3 * n, S, width, height, (float)eps2d, 0.0f, 0.0f, 0.0f, o);
-                float v_p[3] = {0, 0, 0}, v_Sc[3][3] = {{0}};
-                project_one_bwd(cam, o, g2 + 2 * i, gd[i], gc + 3 * i, v_p, v_Sc);
-                // p = R mean + t; Sc = R S R^T
+                project_one(cam, mean, S, width, height, clip, o);
+                vf v_p[3], v_Sc[3][3];
+                project_one_bwd(cam, o, v_m2, v_d[0], v_con, v_p, v_Sc);
+                // p = R mean + t; Sc = R S R^T (a camera that does not see the Gaussian adds nothing)
                 for (int j = 0; j < 3; ++j)
-                    vm[3 * n + j] += cam.R[0][j] * v_p[0] + cam.R[1][j] * v_p[1] + cam.R[2][j] * v_p[2];
-                float T[3][3];  // R^T v_Sc
+                    v_mean[j] = vis ? v_mean[j] + (cam.R[0][j] * v_p[0] + cam.R[1][j] * v_p[1] + cam.R[2][j] * v_p[2])
+                                    : v_mean[j];
+                vf T[3][3];  // R^T v_Sc
                 for (int i2 = 0; i2 < 3; ++i2)
                     for (int j = 0; j < 3; ++j)
                         T[i2][j] = cam.R[0][i2] * v_Sc[0][j] + cam.R[1][i2] * v_Sc[1][j] + cam.R[2][i2] * v_Sc[2][j];
                 for (int i2 = 0; i2 < 3; ++i2)
                     for (int j = 0; j < 3; ++j)
-                        v_S[i2][j] += T[i2][0] * cam.R[0][j] + T[i2][1] * cam.R[1][j] + T[i2][2] * cam.R[2][j];
+                        v_S[i2][j] = vis ? v_S[i2][j] + (T[i2][0] * cam.R[0][j] + T[i2][1] * cam.R[1][j] +
+                                                         T[i2][2] * cam.R[2][j])
+                                         : v_S[i2][j];
             }
             // S = M M^T (v_S symmetric): v_M = (v_S + v_S^T) M; M = Rq diag(s)
-            float v_Rq[3][3];
+            vf v_Rq[3][3], v_scale[3] = {}, v_quat[4];
             for (int i2 = 0; i2 < 3; ++i2)
                 for (int j = 0; j < 3; ++j) {
-                    float v_M = 0.0f;
+                    vf v_M = zeros();
                     for (int k = 0; k < 3; ++k) v_M += (v_S[i2][k] + v_S[k][i2]) * M[k][j];
-                    v_Rq[i2][j] = v_M * s[3 * n + j];
-                    vs[3 * n + j] += v_M * Rq[i2][j];
+                    v_Rq[i2][j] = v_M * scale[j];
+                    v_scale[j] += v_M * Rq[i2][j];
                 }
-            quat_bwd(qn, inv_norm, v_Rq, vq + 4 * n);
+            quat_bwd(qn, inv_norm, v_Rq, v_quat);
+            scatter(v_mean, 3, 3, idx, L, vm);
+            scatter(v_quat, 4, 4, idx, L, vq);
+            scatter(v_scale, 3, 3, idx, L, vs);
         }
     });
     return {v_means, v_quats, v_scales};
@@ -387,24 +502,20 @@ torch::Tensor sh_fwd(const torch::Tensor &means, const torch::Tensor &viewmats, 
     const int32_t *r = radii.data_ptr<int32_t>();
     float *out = colors.data_ptr<float>();
     at::parallel_for(0, in.N, kGrain, [&](int64_t begin, int64_t end) {
-        float Y[16];
-        for (int64_t n = begin; n < end; ++n) {
-            const float *dn = cdc + 3 * n, *rn = crest + n * in.R * 3;
-            for (int64_t c = 0; c < in.C; ++c) {
-                const int64_t i = c * in.N + n;
-                if (r[i] <= 0) {
-                    out[3 * i] = out[3 * i + 1] = out[3 * i + 2] = 0.0f;
-                    continue;
-                }
-                float d[3];
-                for (int j = 0; j < 3; ++j) d[j] = m[3 * n + j] - cams[c].centre[j];
-                const float inv = 1.0f / std::max(std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), 1e-12f);
-                sh_basis(in.degree, d[0] * inv, d[1] * inv, d[2] * inv, Y, nullptr);
-                for (int ch = 0; ch < 3; ++ch) {
-                    float v = 0.0f;
-                    for (int k = 0; k < in.k_used; ++k) v += Y[k] * coeff(dn, rn, k, ch);
-                    out[3 * i + ch] = std::max(v + 0.5f, 0.0f);
-                }
+        for (int64_t c = 0; c < in.C; ++c) {
+            std::fill(out + 3 * (c * in.N + begin), out + 3 * (c * in.N + end), 0.0f);
+            const std::vector<int64_t> seen = seen_in(r, in.C, in.N, c, begin, end);
+            for (size_t b0 = 0; b0 < seen.size(); b0 += kLanes) {
+                const int64_t *idx = seen.data() + b0;
+                const int L = (int)std::min<size_t>(kLanes, seen.size() - b0);
+                vf mean[3], coef[48], u[3], inv, Y[16], v[3];
+                gather(m, 3, 3, idx, L, mean);
+                gather_coeffs(in, cdc, crest, idx, L, coef);
+                view_dirs(cams[c], mean, u, inv);
+                sh_basis(in.degree, u[0], u[1], u[2], Y, nullptr);
+                sh_sum(in, Y, coef, v);
+                for (int ch = 0; ch < 3; ++ch) v[ch] = vmax(v[ch] + 0.5f, zeros());
+                scatter(v, 3, 3, idx, L, out + 3 * c * in.N);
             }
         }
     });
@@ -418,7 +529,7 @@ std::vector<torch::Tensor> sh_bwd(const torch::Tensor &means, const torch::Tenso
     check_cpu_f32(v_colors, "v_colors");
     TORCH_CHECK(v_colors.numel() == in.C * in.N * 3, "v_colors must be [C, N, 3]");
     const std::vector<Camera> cams = cameras(viewmats, torch::Tensor(), 0, 0);
-    // every element is written by its Gaussian's task (zeros included): no separate zero-fill pass
+    // each task zero-fills its own rows (in cache) and writes the Gaussians some camera sees
     auto v_dc = torch::empty_like(dc);
     auto v_rest = torch::empty_like(rest);
     auto v_means = torch::empty({in.N, 3}, means.options());
@@ -427,43 +538,44 @@ std::vector<torch::Tensor> sh_bwd(const torch::Tensor &means, const torch::Tenso
     const int32_t *r = radii.data_ptr<int32_t>();
     float *vdc = v_dc.data_ptr<float>(), *vrest = v_rest.data_ptr<float>(), *vm = v_means.data_ptr<float>();
     at::parallel_for(0, in.N, kGrain, [&](int64_t begin, int64_t end) {
-        float Y[16], dY[16][3];
-        for (int64_t n = begin; n < end; ++n) {
-            const float *dn = cdc + 3 * n, *rn = crest + n * in.R * 3;
-            float vc[16][3] = {{0}};  // gradient of the k_used coefficients read
-            float vmn[3] = {0, 0, 0};
+        std::fill(vdc + 3 * begin, vdc + 3 * end, 0.0f);
+        std::fill(vrest + 3 * in.R * begin, vrest + 3 * in.R * end, 0.0f);
+        std::fill(vm + 3 * begin, vm + 3 * end, 0.0f);
+        const std::vector<int64_t> seen = seen_in(r, in.C, in.N, -1, begin, end);
+        for (size_t b0 = 0; b0 < seen.size(); b0 += kLanes) {
+            const int64_t *idx = seen.data() + b0;
+            const int L = (int)std::min<size_t>(kLanes, seen.size() - b0);
+            vf mean[3], coef[48], vc[48] = {}, vmn[3] = {};  // vc: gradient of the k_used coefficients read
+            gather(m, 3, 3, idx, L, mean);
+            gather_coeffs(in, cdc, crest, idx, L, coef);
             for (int64_t c = 0; c < in.C; ++c) {
-                const int64_t i = c * in.N + n;
-                if (r[i] <= 0) continue;
-                float d[3];
-                for (int j = 0; j < 3; ++j) d[j] = m[3 * n + j] - cams[c].centre[j];
-                const float norm = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-                const float inv = 1.0f / std::max(norm, 1e-12f);
-                const float u[3] = {d[0] * inv, d[1] * inv, d[2] * inv};
-                sh_basis(in.degree, u[0], u[1], u[2], Y, dY);
-                float gv[3];  // upstream gradient, zero where the clamp at 0 bound
-                for (int ch = 0; ch < 3; ++ch) {
-                    float v = 0.0f;
-                    for (int k = 0; k < in.k_used; ++k) v += Y[k] * coeff(dn, rn, k, ch);
-                    gv[ch] = (v + 0.5f >= 0.0f) ? g[3 * i + ch] : 0.0f;
+                int64_t rows[kLanes];
+                vi vis;
+                for (int l = 0; l < kLanes; ++l) {
+                    rows[l] = c * in.N + idx[l < L ? l : 0];
+                    vis[l] = r[rows[l]] > 0 ? -1 : 0;
                 }
-                float v_u[3] = {0, 0, 0};
+                vf gv[3], u[3], inv, Y[16], dY[16][3], v[3];
+                gather(g, 3, 3, rows, L, gv);
+                view_dirs(cams[c], mean, u, inv);
+                sh_basis(in.degree, u[0], u[1], u[2], Y, dY);
+                sh_sum(in, Y, coef, v);
+                for (int ch = 0; ch < 3; ++ch) gv[ch] = (v[ch] + 0.5f >= 0.0f) ? gv[ch] : zeros();  // clamp at 0
+                vf v_u[3] = {};
                 for (int k = 0; k < in.k_used; ++k) {
-                    float dot = 0.0f;
+                    vf dot = zeros();
                     for (int ch = 0; ch < 3; ++ch) {
-                        vc[k][ch] += Y[k] * gv[ch];
-                        dot += coeff(dn, rn, k, ch) * gv[ch];
+                        vc[3 * k + ch] = vis ? vc[3 * k + ch] + Y[k] * gv[ch] : vc[3 * k + ch];
+                        dot += coef[3 * k + ch] * gv[ch];
                     }
                     for (int j = 0; j < 3; ++j) v_u[j] += dot * dY[k][j];
                 }
-                const float along = u[0] * v_u[0] + u[1] * v_u[1] + u[2] * v_u[2];
-                for (int j = 0; j < 3; ++j) vmn[j] += (v_u[j] - u[j] * along) * inv;
+                const vf along = u[0] * v_u[0] + u[1] * v_u[1] + u[2] * v_u[2];
+                for (int j = 0; j < 3; ++j) vmn[j] = vis ? vmn[j] + (v_u[j] - u[j] * along) * inv : vmn[j];
             }
-            for (int ch = 0; ch < 3; ++ch) vdc[3 * n + ch] = vc[0][ch];
-            float *vrn = vrest + n * in.R * 3;
-            for (int64_t k = 1; k <= in.R; ++k)
-                for (int ch = 0; ch < 3; ++ch) vrn[3 * (k - 1) + ch] = k < in.k_used ? vc[k][ch] : 0.0f;
-            for (int j = 0; j < 3; ++j) vm[3 * n + j] = vmn[j];
+            scatter(vc, 3, 3, idx, L, vdc);
+            scatter(vc + 3, 3 * in.R, 3 * (in.k_used - 1), idx, L, vrest);
+            scatter(vmn, 3, 3, idx, L, vm);
         }
     });
     return {v_dc, v_rest, v_means};
