@@ -71,8 +71,9 @@ class StealthSplatModelConfig(SplatfactoModelConfig):
     pure-PyTorch rasterizer (slow; used with a warning when the compiled one cannot build)."""
     keep_freed_memory: bool = True
     """On the CPU backends, set glibc's malloc to keep freed memory for the next step instead of
-    returning it to the OS (process-wide; see ``malloc_tuning.py``). Measured: median step 34.9 ->
-    32.9 ms on ``stealth-ns bench train`` (2 threads), same peak RSS."""
+    returning it to the OS (process-wide; see ``malloc_tuning.py``). Measured through glibc's
+    ``MALLOC_*`` variables (mmap threshold 1 GiB, no trim): median step 34.9 -> 32.9 ms on
+    ``stealth-ns bench train`` (2 threads), same peak RSS."""
     densify_grad_thresh_cpu: float = 0.0002
     """Grow threshold on the mean screen-space gradient when absgrad is unavailable (CPU
     backends); gsplat's default for plain gradients."""

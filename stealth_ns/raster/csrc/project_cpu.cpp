@@ -26,7 +26,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 
 namespace stealth_ns {
 namespace {
@@ -336,6 +335,18 @@ std::vector<int64_t> seen_in(const int32_t *radii, int64_t C, int64_t N, int64_t
     return seen;
 }
 
+// Rows c * N + idx[l] of camera c's [C, N, ...] arrays for the lanes of a block (lanes >= L repeat lane 0,
+// as gather does) and the mask of the lanes whose Gaussian the camera sees (radius > 0).
+inline vi camera_rows(const int32_t *radii, int64_t c, int64_t N, const int64_t *idx, int L,
+                      int64_t rows[kLanes]) {
+    vi vis;
+    for (int l = 0; l < kLanes; ++l) {
+        rows[l] = c * N + idx[l < L ? l : 0];
+        vis[l] = radii[rows[l]] > 0 ? -1 : 0;
+    }
+    return vis;
+}
+
 // The k_used coefficients of a block, coef[3 k + ch] (the DC term is stored apart from the rest).
 inline void gather_coeffs(const ShInputs &in, const float *dc, const float *rest, const int64_t *idx, int L,
                           vf coef[48]) {
@@ -448,11 +459,7 @@ std::vector<torch::Tensor> project_bwd(const torch::Tensor &means, const torch::
             for (int64_t c = 0; c < C; ++c) {
                 const Camera &cam = cams[c];
                 int64_t rows[kLanes];
-                vi vis;
-                for (int l = 0; l < kLanes; ++l) {
-                    rows[l] = c * N + idx[l < L ? l : 0];
-                    vis[l] = r[rows[l]] > 0 ? -1 : 0;
-                }
+                const vi vis = camera_rows(r, c, N, idx, L, rows);
                 vf v_m2[2], v_con[3], v_d[1];
                 gather(g2, 2, 2, rows, L, v_m2);
                 gather(gc, 3, 3, rows, L, v_con);
@@ -550,11 +557,7 @@ std::vector<torch::Tensor> sh_bwd(const torch::Tensor &means, const torch::Tenso
             gather_coeffs(in, cdc, crest, idx, L, coef);
             for (int64_t c = 0; c < in.C; ++c) {
                 int64_t rows[kLanes];
-                vi vis;
-                for (int l = 0; l < kLanes; ++l) {
-                    rows[l] = c * in.N + idx[l < L ? l : 0];
-                    vis[l] = r[rows[l]] > 0 ? -1 : 0;
-                }
+                const vi vis = camera_rows(r, c, in.N, idx, L, rows);
                 vf gv[3], u[3], inv, Y[16], dY[16][3], v[3];
                 gather(g, 3, 3, rows, L, gv);
                 view_dirs(cams[c], mean, u, inv);
