@@ -52,6 +52,7 @@
 #include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
+#include <immintrin.h>
 #include <omp.h>
 
 #include <algorithm>
@@ -102,6 +103,61 @@ inline float vsum(vf v) {
 }
 inline vf vsel(vi m, vf a, vf b) { return m ? a : b; }
 inline vf vmin(vf a, vf b) { return a < b ? a : b; }  // std::min(b, a) semantics
+inline vf vsqrt(vf x) {
+    vf r;
+    for (int l = 0; l < VW; ++l) r[l] = std::sqrt(x[l]);  // one vsqrtps (-fno-math-errno)
+    return r;
+}
+#if defined(__AVX__)
+// one vroundps (GCC does not vectorise the lane loop below)
+inline vf vceil(vf x) { return (vf)_mm256_round_ps((__m256)x, _MM_FROUND_TO_POS_INF | _MM_FROUND_NO_EXC); }
+inline vf vfloor(vf x) { return (vf)_mm256_round_ps((__m256)x, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC); }
+#else
+inline vf vceil(vf x) {
+    vf r;
+    for (int l = 0; l < VW; ++l) r[l] = std::ceil(x[l]);
+    return r;
+}
+inline vf vfloor(vf x) {
+    vf r;
+    for (int l = 0; l < VW; ++l) r[l] = std::floor(x[l]);
+    return r;
+}
+#endif
+
+// Lane masks of the per-pixel tests.  With AVX-512VL they live in mask registers (__mmask8), and
+// the tests, selects and "any lane" checks are single instructions; GCC's vector booleans instead
+// went through general registers lane by lane.  Elsewhere they are vector booleans (-1 / 0 lanes).
+// Comparisons are ordered and quiet, as the vector operators: false when a lane is NaN.
+#if defined(__AVX512VL__) && defined(__AVX512DQ__)
+typedef __mmask8 lmask;
+inline lmask m_lt(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_LT_OQ); }
+inline lmask m_le(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_LE_OQ); }
+inline lmask m_ge(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_GE_OQ); }
+inline lmask m_ilt(vi a, vi b) { return _mm256_cmplt_epi32_mask((__m256i)a, (__m256i)b); }
+inline lmask m_ile(vi a, vi b) { return _mm256_cmple_epi32_mask((__m256i)a, (__m256i)b); }
+inline lmask m_ige(vi a, vi b) { return _mm256_cmpge_epi32_mask((__m256i)a, (__m256i)b); }
+inline lmask m_nonzero(vi a) { return _mm256_test_epi32_mask((__m256i)a, (__m256i)a); }
+inline vi m_lanes(lmask m) { return (vi)_mm256_movm_epi32(m); }  // -1 / 0 per lane
+inline bool m_any(lmask m) { return m != 0; }
+inline int m_count(lmask m) { return __builtin_popcount(m); }
+inline vf m_sel(lmask m, vf a, vf b) { return (vf)_mm256_mask_blend_ps(m, (__m256)b, (__m256)a); }
+inline vi m_seli(lmask m, vi a, vi b) { return (vi)_mm256_mask_blend_epi32(m, (__m256i)b, (__m256i)a); }
+#else
+typedef vi lmask;
+inline lmask m_lt(vf a, vf b) { return a < b; }
+inline lmask m_le(vf a, vf b) { return a <= b; }
+inline lmask m_ge(vf a, vf b) { return a >= b; }
+inline lmask m_ilt(vi a, vi b) { return a < b; }
+inline lmask m_ile(vi a, vi b) { return a <= b; }
+inline lmask m_ige(vi a, vi b) { return a >= b; }
+inline lmask m_nonzero(vi a) { return a != 0; }
+inline vi m_lanes(lmask m) { return m; }
+inline bool m_any(lmask m) { return vany(m); }
+inline int m_count(lmask m) { return vcount(m); }
+inline vf m_sel(lmask m, vf a, vf b) { return m ? a : b; }
+inline vi m_seli(lmask m, vi a, vi b) { return m ? a : b; }
+#endif
 
 // exp(x), lane-wise: Cody-Waite range reduction + Cephes' degree-6 polynomial
 // (~1 ulp where it matters), exp(0) == 1 exactly, exp(x) <= 1 for x <= 0, 0 below
@@ -133,7 +189,7 @@ inline vf vexp(vf x) {
 // Shared by forward and backward so that both take identical decisions.
 struct BlockEval {
     vf dx, sigma, vis, alpha;
-    vi pass;  // sigma >= 0 && alpha >= 1/255
+    lmask pass;  // sigma >= 0 && alpha >= 1/255
 };
 
 inline BlockEval eval_block(float mx, float ca, float cb, float cc, float op, float dy, vf px) {
@@ -143,7 +199,7 @@ inline BlockEval eval_block(float mx, float ca, float cb, float cc, float op, fl
     e.sigma = 0.5f * (ca * e.dx * e.dx + cdd) + cb * e.dx * dy;
     e.vis = vexp(-e.sigma);
     e.alpha = vmin(op * e.vis, vset(kAlphaMax));
-    e.pass = (e.sigma >= vset(0.f)) & (e.alpha >= vset(kAlphaMin));
+    e.pass = m_ge(e.sigma, vset(0.f)) & m_ge(e.alpha, vset(kAlphaMin));
     return e;
 }
 
@@ -230,26 +286,74 @@ inline void prep_rows(const GPrep &g, int ty0, int ty1, int &y0, int &y1) {
     if (y1 < y0) y1 = y0;
 }
 
-// Pixel columns [j0, j1) of row i (pixel centre y = i + 0.5) inside the tile columns [tx0, tx1).
-inline void prep_span(const GPrep &g, float dy, int tx0, int tx1, int &j0, int &j1) {
+// The rows [y0, y1) of the tile that the Gaussian may touch and, for each (tile-local row r = i -
+// y_base), its tile-local pixel columns [lo[r], hi[r]): for pixel centre y = i + 0.5,
+//   0.5 a dx^2 + b dy dx + 0.5 c dy^2 <= teff  <=>  px in centre -+ sqrt(2 a teff - det dy^2) / a.
+// Vectorised over rows (VW at a time; lo/hi hold at least ts + VW entries); every lane evaluates the
+// expressions a scalar per-row loop would, so the spans do not depend on the vectorisation.
+inline void prep_spans(
+    const GPrep &g, int x_base, int tx1, int y_base, int ty1, int &y0, int &y1, int32_t *lo, int32_t *hi
+) {
+    prep_rows(g, y_base, ty1, y0, y1);
     if (g.kind != kEllipse) {
-        j0 = tx0;
-        j1 = tx1;
+        for (int r = y0 - y_base; r < y1 - y_base; ++r) {
+            lo[r] = 0;
+            hi[r] = tx1 - x_base;
+        }
         return;
     }
-    // 0.5 a dx^2 + b dy dx + 0.5 c dy^2 <= teff  <=>  px in centre -+ sqrt(2 a teff - det dy^2) / a
-    const float disc = g.two_a_teff - g.det * dy * dy;
-    if (!(disc >= 0.f)) {
-        j0 = j1 = tx0;
-        return;
+    const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
+    const vf tx0f = vset((float)x_base), tx1f = vset((float)tx1);
+    for (int i = y0; i < y1; i += VW) {
+        const vf dy = g.my - (__builtin_convertvector(lane + i, vf) + 0.5f);
+        const vf disc = g.two_a_teff - g.det * dy * dy;
+        const vi inside = disc >= vset(0.f);  // false for NaN too
+        const vf s = vsqrt(vsel(inside, disc, vset(0.f))) * g.inv_a;
+        const vf centre = g.mx + g.b_over_a * dy;
+        const vf flo = vceil(centre - s - 0.5f - kSpanPad);
+        const vf fhi = vfloor(centre + s - 0.5f + kSpanPad) + 1.f;  // exclusive
+        const vf clo = vsel(flo <= tx0f, tx0f, vsel(flo >= tx1f, tx1f, flo));
+        const vf chi = vsel(fhi >= tx1f, tx1f, vsel(fhi <= tx0f, tx0f, fhi));
+        vi j0 = __builtin_convertvector(clo, vi) - x_base, j1 = __builtin_convertvector(chi, vi) - x_base;
+        j1 = j1 < j0 ? j0 : j1;
+        j0 = inside ? j0 : viset(0);
+        j1 = inside ? j1 : viset(0);
+        vist(lo + (i - y_base), j0);
+        vist(hi + (i - y_base), j1);
     }
-    const float s = std::sqrt(disc) * g.inv_a;
-    const float centre = g.mx + g.b_over_a * dy;
-    const float lo = std::ceil(centre - s - 0.5f - kSpanPad);
-    const float hi = std::floor(centre + s - 0.5f + kSpanPad) + 1.f;  // exclusive
-    j0 = lo <= (float)tx0 ? tx0 : (lo >= (float)tx1 ? tx1 : (int)lo);
-    j1 = hi >= (float)tx1 ? tx1 : (hi <= (float)tx0 ? tx0 : (int)hi);
-    if (j1 < j0) j1 = j0;
+}
+
+// One VW-pixel block of a Gaussian's footprint in a tile: its offset o in the tile state, its first
+// tile-local column b, the pixel-centre offset dy of its row and the row's span [lx0, lx1).
+struct Block {
+    int32_t o, b;
+    float dy;
+    int32_t lx0, lx1;
+};
+
+// The blocks of a Gaussian's footprint in a tile, row by row (``blocks`` holds ts * stride / VW + 2
+// entries); returns their count.  For 16-pixel tiles, branch free: a row has 0, 1 or 2 blocks.
+inline int list_blocks(
+    const GPrep &g, int x_base, int tx1, int y_base, int ty1, int stride, int32_t *lo, int32_t *hi,
+    Block *blocks
+) {
+    int y0, y1;
+    prep_spans(g, x_base, tx1, y_base, ty1, y0, y1, lo, hi);
+    int nb = 0;
+    for (int i = y0; i < y1; ++i) {
+        const int r = i - y_base;
+        const int lx0 = lo[r], lx1 = hi[r];
+        const float dy = g.my - ((float)i + 0.5f);
+        const int first = lx0 / VW * VW;
+        if (stride == 2 * VW) {
+            blocks[nb] = {r * stride + first, first, dy, lx0, lx1};
+            blocks[nb + 1] = {r * stride + first + VW, first + VW, dy, lx0, lx1};
+            nb += lx1 > lx0 ? (lx1 - 1) / VW - lx0 / VW + 1 : 0;
+        } else {
+            for (int b = first; b < lx1; b += VW) blocks[nb++] = {r * stride + b, b, dy, lx0, lx1};
+        }
+    }
+    return nb;
 }
 
 // Parallel pre-pass over the Gaussians that some tile list holds (in training often under half of
@@ -319,6 +423,11 @@ void fwd_impl(
         float *__restrict__ colp = col_buf.data();
         int32_t *__restrict__ lastp = last_buf.data();
         int32_t *__restrict__ donep = done_buf.data();
+        std::vector<int32_t> span_buf(2 * (size_t)(ts + VW));
+        int32_t *__restrict__ span_lo = span_buf.data();
+        int32_t *__restrict__ span_hi = span_lo + ts + VW;
+        std::vector<Block> block_buf((size_t)ts * (stride / VW) + 2);
+        Block *__restrict__ blocks = block_buf.data();
 
 #pragma omp for schedule(dynamic, 1)
         for (int64_t task = 0; task < n_tasks; ++task) {
@@ -349,41 +458,32 @@ void fwd_impl(
                 const float mx = gp.mx, my = gp.my, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;
                 const float *__restrict__ cptr = colors + gi * D;
                 const vi idxv = viset((int32_t)idx);
-                int y0, y1;
-                prep_rows(gp, y_base, ty1, y0, y1);
-                for (int i = y0; i < y1; ++i) {
-                    const float dy = my - ((float)i + 0.5f);
-                    int j0, j1;
-                    prep_span(gp, dy, x_base, tx1, j0, j1);
-                    const int lx0 = j0 - x_base, lx1 = j1 - x_base;
-                    const int row = (i - y_base) * stride;
-                    for (int b = lx0 / VW * VW; b < lx1; b += VW) {
-                        const vi lx = lane + b;
-                        const vi in_span = (lx >= viset(lx0)) & (lx < viset(lx1));
-                        const int o = row + b;
-                        const vi done = vild(donep + o);
-                        const vi todo = in_span & ~done;
-                        if (!vany(todo)) continue;
-                        const vf px = __builtin_convertvector(lx + x_base, vf) + 0.5f;
-                        const BlockEval e = eval_block(mx, ca, cb, cc, op, dy, px);
-                        const vi valid = todo & e.pass;
-                        if (!vany(valid)) continue;
-                        const vf T = vld(Tp + o);
-                        const vf next_T = T * (1.f - e.alpha);
-                        const vi term = valid & (next_T <= vset(kTransmittanceMin));  // exclusive stop
-                        const vi contrib = valid & ~term;
-                        if (vany(term)) {
-                            vist(donep + o, done | term);
-                            active -= vcount(term);
-                        }
-                        const vf vis = e.alpha * T;
-                        vst(Tp + o, vsel(contrib, next_T, T));
-                        vist(lastp + o, contrib ? idxv : vild(lastp + o));
-                        for (int k = 0; k < D; ++k) {
-                            float *__restrict__ cp = colp + (size_t)k * npad + o;
-                            const vf cur = vld(cp);
-                            vst(cp, vsel(contrib, cur + cptr[k] * vis, cur));
-                        }
+                const int nb = list_blocks(gp, x_base, tx1, y_base, ty1, stride, span_lo, span_hi, blocks);
+                for (int k0 = 0; k0 < nb; ++k0) {
+                    const Block &bk = blocks[k0];
+                    const int o = bk.o;
+                    const vi lx = lane + bk.b;
+                    const vi done = vild(donep + o);
+                    const lmask todo = m_ige(lx, viset(bk.lx0)) & m_ilt(lx, viset(bk.lx1)) & ~m_nonzero(done);
+                    if (!m_any(todo)) continue;
+                    const vf px = __builtin_convertvector(lx + x_base, vf) + 0.5f;
+                    const BlockEval e = eval_block(mx, ca, cb, cc, op, bk.dy, px);
+                    const lmask valid = todo & e.pass;
+                    const vf T = vld(Tp + o);
+                    const vf next_T = T * (1.f - e.alpha);
+                    const lmask term = valid & m_le(next_T, vset(kTransmittanceMin));  // exclusive stop
+                    const lmask contrib = valid & ~term;
+                    if (m_any(term)) {
+                        vist(donep + o, done | m_lanes(term));
+                        active -= m_count(term);
+                    }
+                    const vf vis = e.alpha * T;
+                    vst(Tp + o, m_sel(contrib, next_T, T));
+                    vist(lastp + o, m_seli(contrib, idxv, vild(lastp + o)));
+                    for (int k = 0; k < D; ++k) {
+                        float *__restrict__ cp = colp + (size_t)k * npad + o;
+                        const vf cur = vld(cp);
+                        vst(cp, m_sel(contrib, cur + cptr[k] * vis, cur));
                     }
                 }
             }
@@ -450,6 +550,11 @@ void bwd_impl(
         float *__restrict__ voutp = vout_buf.data();
         float *__restrict__ accp = acc_buf.data();
         int32_t *__restrict__ lastp = last_buf.data();
+        std::vector<int32_t> span_buf(2 * (size_t)(ts + VW));
+        int32_t *__restrict__ span_lo = span_buf.data();
+        int32_t *__restrict__ span_hi = span_lo + ts + VW;
+        std::vector<Block> block_buf((size_t)ts * (stride / VW) + 2);
+        Block *__restrict__ blocks = block_buf.data();
         float *__restrict__ my_buf = mode == 2 ? thread_buf + (size_t)omp_get_thread_num() * C * N * S : nullptr;
 
 #pragma omp for schedule(dynamic, 1)
@@ -503,60 +608,53 @@ void bwd_impl(
                 const float mx = gp.mx, my = gp.my, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;
                 const float *__restrict__ cptr = colors + gi * D;
                 const vi idxv = viset((int32_t)idx);
-                int y0, y1;
-                prep_rows(gp, y_base, ty1, y0, y1);
+                const int nb = list_blocks(gp, x_base, tx1, y_base, ty1, stride, span_lo, span_hi, blocks);
                 vf grgb_st[DT > 0 ? DT : 1];
                 vf *grgb = DT > 0 ? grgb_st : grgb_dyn.data();
                 for (int k = 0; k < D; ++k) grgb[k] = vset(0.f);
                 vf g_ca = vset(0.f), g_cb = g_ca, g_cc = g_ca, g_x = g_ca, g_y = g_ca, g_o = g_ca;
-                bool any = false;
-                for (int i = y0; i < y1; ++i) {
-                    const float dy = my - ((float)i + 0.5f);
-                    int j0, j1;
-                    prep_span(gp, dy, x_base, tx1, j0, j1);
-                    const int lx0 = j0 - x_base, lx1 = j1 - x_base;
-                    const int row = (i - y_base) * stride;
-                    for (int b = lx0 / VW * VW; b < lx1; b += VW) {
-                        const vi lx = lane + b;
-                        const vi in_span = (lx >= viset(lx0)) & (lx < viset(lx1));
-                        const int o = row + b;
-                        const vi mine = in_span & (idxv <= vild(lastp + o));
-                        if (!vany(mine)) continue;
-                        const vf px = __builtin_convertvector(lx + x_base, vf) + 0.5f;
-                        const BlockEval e = eval_block(mx, ca, cb, cc, op, dy, px);
-                        const vi valid = mine & e.pass;
-                        if (!vany(valid)) continue;
-                        any = true;
-                        const vf ra = 1.f / (1.f - e.alpha);
-                        const vf T = vsel(valid, vld(Tp + o) * ra, vld(Tp + o));
-                        vst(Tp + o, T);
-                        const vf fac = e.alpha * T;
-                        vf v_alpha = vset(0.f);
-                        for (int k = 0; k < D; ++k) {
-                            const vf vo = vld(voutp + (size_t)k * npad + o);
-                            const vf ac = vld(accp + (size_t)k * npad + o);
-                            grgb[k] += vsel(valid, fac * vo, vset(0.f));
-                            v_alpha += (cptr[k] * T - ac * ra) * vo;
-                        }
-                        v_alpha += ra * vld(wp + o);
-                        const vi unclamped = valid & (op * e.vis <= vset(kAlphaMax));
-                        const vf v_sigma = -op * e.vis * v_alpha;
-                        const vf dx = e.dx;
-                        const vf zero = vset(0.f);
-                        g_ca += vsel(unclamped, 0.5f * v_sigma * dx * dx, zero);
-                        g_cb += vsel(unclamped, v_sigma * dx * dy, zero);
-                        g_cc += vsel(unclamped, 0.5f * v_sigma * dy * dy, zero);
-                        g_x += vsel(unclamped, v_sigma * (ca * dx + cb * dy), zero);
-                        g_y += vsel(unclamped, v_sigma * (cb * dx + cc * dy), zero);
-                        g_o += vsel(unclamped, e.vis * v_alpha, zero);
-                        for (int k = 0; k < D; ++k) {
-                            float *__restrict__ acp = accp + (size_t)k * npad + o;
-                            const vf ac = vld(acp);
-                            vst(acp, vsel(valid, ac + cptr[k] * fac, ac));
-                        }
+                lmask any{};
+                for (int k0 = 0; k0 < nb; ++k0) {
+                    const Block &bk = blocks[k0];
+                    const int o = bk.o;
+                    const float dy = bk.dy;
+                    const vi lx = lane + bk.b;
+                    const lmask mine =
+                        m_ige(lx, viset(bk.lx0)) & m_ilt(lx, viset(bk.lx1)) & m_ile(idxv, vild(lastp + o));
+                    if (!m_any(mine)) continue;
+                    const vf px = __builtin_convertvector(lx + x_base, vf) + 0.5f;
+                    const BlockEval e = eval_block(mx, ca, cb, cc, op, dy, px);
+                    const lmask valid = mine & e.pass;
+                    any |= valid;
+                    const vf ra = 1.f / (1.f - e.alpha);
+                    const vf T = m_sel(valid, vld(Tp + o) * ra, vld(Tp + o));
+                    vst(Tp + o, T);
+                    const vf fac = e.alpha * T;
+                    const vf zero = vset(0.f);
+                    vf v_alpha = zero;
+                    for (int k = 0; k < D; ++k) {
+                        const vf vo = vld(voutp + (size_t)k * npad + o);
+                        const vf ac = vld(accp + (size_t)k * npad + o);
+                        grgb[k] += m_sel(valid, fac * vo, zero);
+                        v_alpha += (cptr[k] * T - ac * ra) * vo;
+                    }
+                    v_alpha += ra * vld(wp + o);
+                    const lmask unclamped = valid & m_le(op * e.vis, vset(kAlphaMax));
+                    const vf v_sigma = -op * e.vis * v_alpha;
+                    const vf dx = e.dx;
+                    g_ca += m_sel(unclamped, 0.5f * v_sigma * dx * dx, zero);
+                    g_cb += m_sel(unclamped, v_sigma * dx * dy, zero);
+                    g_cc += m_sel(unclamped, 0.5f * v_sigma * dy * dy, zero);
+                    g_x += m_sel(unclamped, v_sigma * (ca * dx + cb * dy), zero);
+                    g_y += m_sel(unclamped, v_sigma * (cb * dx + cc * dy), zero);
+                    g_o += m_sel(unclamped, e.vis * v_alpha, zero);
+                    for (int k = 0; k < D; ++k) {
+                        float *__restrict__ acp = accp + (size_t)k * npad + o;
+                        const vf ac = vld(acp);
+                        vst(acp, m_sel(valid, ac + cptr[k] * fac, ac));
                     }
                 }
-                if (!any) continue;
+                if (!m_any(any)) continue;
                 const float sx = vsum(g_x), sy = vsum(g_y), sa = vsum(g_ca), sb = vsum(g_cb), sc = vsum(g_cc),
                             so = vsum(g_o);
                 if (mode == 0) {
