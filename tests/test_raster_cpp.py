@@ -330,6 +330,12 @@ def test_channels_two_cameras(ext, D):
     check_against_reference(2, 70, 41, 26, D=D, seed=20 + D)
 
 
+@pytest.mark.parametrize("tile_size", [12, 20])
+def test_tile_sizes_not_a_multiple_of_the_vector_width(ext, tile_size):
+    # 12: two 8-pixel blocks per tile row, the second partly outside the tile; 20: three blocks per row
+    check_against_reference(1, 90, 45, 31, D=3, seed=30 + tile_size, tile_size=tile_size)
+
+
 def test_no_background(ext):
     check_against_reference(2, 70, 33, 40, D=4, seed=9, with_bg=False)
 

@@ -389,6 +389,17 @@ inline void tile_range(
     end = (flat == C * n_tiles - 1) ? n_isects : (int64_t)offsets[flat + 1];
 }
 
+// The (camera, tile) tasks, longest list first: with schedule(dynamic) the threads then finish
+// together (longest-processing-time-first) instead of one thread taking a long tile last.  Which
+// thread runs a task never changes its result.
+std::vector<int32_t> tasks_by_cost(const int32_t *offsets, int64_t n_tasks, int64_t n_isects) {
+    std::vector<int32_t> order((size_t)n_tasks);
+    std::iota(order.begin(), order.end(), 0);
+    auto cost = [&](int32_t t) { return (t + 1 < n_tasks ? (int64_t)offsets[t + 1] : n_isects) - offsets[t]; };
+    std::stable_sort(order.begin(), order.end(), [&](int32_t a, int32_t b) { return cost(a) > cost(b); });
+    return order;
+}
+
 // ---------------------------------------------------------------------------
 // Forward
 // ---------------------------------------------------------------------------
@@ -411,6 +422,7 @@ void fwd_impl(
     const int npad = stride * ts;
     const int64_t n_tiles = (int64_t)g.tiles_x * g.tiles_y;
     const int64_t n_tasks = C * n_tiles;
+    const std::vector<int32_t> task_order = tasks_by_cost(offsets, n_tasks, n_isects);
     const int64_t HW = (int64_t)g.H * g.W;
     const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
 
@@ -430,7 +442,8 @@ void fwd_impl(
         Block *__restrict__ blocks = block_buf.data();
 
 #pragma omp for schedule(dynamic, 1)
-        for (int64_t task = 0; task < n_tasks; ++task) {
+        for (int64_t t = 0; t < n_tasks; ++t) {
+            const int64_t task = task_order[t];
             const int64_t cam = task / n_tiles;
             const int64_t tile = task % n_tiles;
             const int tyi = (int)(tile / g.tiles_x), txi = (int)(tile % g.tiles_x);
@@ -537,6 +550,7 @@ void bwd_impl(
     const int npad = stride * ts;
     const int64_t n_tiles = (int64_t)g.tiles_x * g.tiles_y;
     const int64_t n_tasks = C * n_tiles;
+    const std::vector<int32_t> task_order = tasks_by_cost(offsets, n_tasks, n_isects);
     const int64_t HW = (int64_t)g.H * g.W;
     const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
 
@@ -558,7 +572,8 @@ void bwd_impl(
         float *__restrict__ my_buf = mode == 2 ? thread_buf + (size_t)omp_get_thread_num() * C * N * S : nullptr;
 
 #pragma omp for schedule(dynamic, 1)
-        for (int64_t task = 0; task < n_tasks; ++task) {
+        for (int64_t t = 0; t < n_tasks; ++t) {
+            const int64_t task = task_order[t];
             const int64_t cam = task / n_tiles;
             const int64_t tile = task % n_tiles;
             const int tyi = (int)(tile / g.tiles_x), txi = (int)(tile % g.tiles_x);
@@ -892,57 +907,62 @@ std::vector<torch::Tensor> rasterize_bwd(
 // Returns (isect_offsets [C, tiles_y, tiles_x] int32, flatten_ids [n_isects] int32,
 //          tiles_per_gauss [C, N] int32).
 // ---------------------------------------------------------------------------
-std::vector<torch::Tensor> isect_tiles(
-    const torch::Tensor &means2d, const torch::Tensor &radii, const torch::Tensor &depths, int64_t tile_size,
-    int64_t tile_width, int64_t tile_height, int64_t n_threads
+// Tile rectangle [x0, x1) x [y0, y1) of each Gaussian, as gsplat computes it (float division, floor /
+// ceil, clamp to the grid; empty for radius 0), and its tile count.  Branch free, so GCC vectorises it.
+struct TileRects {
+    std::vector<int32_t> x0, y0, x1, y1;
+};
+
+TileRects tile_rects(
+    int64_t CN, const float *m, const int32_t *r, float tsf, int64_t tile_width, int64_t tile_height,
+    int32_t *tpg, int nt
 ) {
-    check_cpu_f32(means2d, "means2d");
-    check_cpu_i32(radii, "radii");
-    check_cpu_f32(depths, "depths");
-    TORCH_CHECK(means2d.dim() == 3 && means2d.size(2) == 2, "means2d must be [C, N, 2]");
-    const int64_t C = means2d.size(0), N = means2d.size(1);
-    TORCH_CHECK(radii.numel() == C * N && depths.numel() == C * N, "radii/depths must be [C, N]");
-    TORCH_CHECK(tile_size >= 1 && tile_width >= 0 && tile_height >= 0, "bad tile grid");
-    const int64_t n_tiles = tile_width * tile_height;
-    TORCH_CHECK(n_tiles < (int64_t)std::numeric_limits<int32_t>::max(), "too many tiles");
-    const int nt = resolve_threads(n_threads);
-    const float *m = means2d.data_ptr<float>();
-    const int32_t *r = radii.data_ptr<int32_t>();
-    const float *dep = depths.data_ptr<float>();
-    auto iopt = means2d.options().dtype(torch::kInt32);
-    auto tiles_per_gauss = torch::empty({C, N}, iopt);
-    int32_t *tpg = tiles_per_gauss.data_ptr<int32_t>();
-    const int64_t CN = C * N;
-    // tile rectangle of each Gaussian, as in gsplat (float division, floor/ceil, clamp)
-    std::vector<int32_t> rect((size_t)CN * 4);
-    const float tsf = (float)tile_size;
-    auto clampi = [](float v, int64_t hi) -> int32_t {
-        if (!(v > 0.f)) return 0;  // also NaN -> 0
-        if (v >= (float)hi) return (int32_t)hi;
-        return (int32_t)v;
+    TileRects rc{std::vector<int32_t>(CN), std::vector<int32_t>(CN), std::vector<int32_t>(CN),
+                 std::vector<int32_t>(CN)};
+    const vf tw = vset((float)tile_width), th = vset((float)tile_height), zero = vset(0.f);
+    // clamp to [0, hi] with NaN -> 0, then truncate (the values are integral already)
+    auto clampi = [&](vf v, vf hi) -> vi {
+        const vf lo = vsel(v > zero, v, zero);
+        return __builtin_convertvector(vsel(lo >= hi, hi, lo), vi);
     };
+    const int64_t n_blocks = (CN + VW - 1) / VW;
 #pragma omp parallel for schedule(static) num_threads(nt)
-    for (int64_t i = 0; i < CN; ++i) {
-        int32_t *rc = rect.data() + 4 * i;
-        if (r[i] <= 0) {
-            rc[0] = rc[1] = rc[2] = rc[3] = 0;
-            tpg[i] = 0;
-            continue;
+    for (int64_t blk = 0; blk < n_blocks; ++blk) {
+        const int64_t i0 = blk * VW;
+        const int L = (int)std::min<int64_t>(VW, CN - i0);
+        vf rad, mx, my;
+        for (int l = 0; l < VW; ++l) {
+            const int64_t i = i0 + (l < L ? l : 0);
+            rad[l] = (float)r[i];
+            mx[l] = m[2 * i];
+            my[l] = m[2 * i + 1];
         }
-        const float tr = (float)r[i] / tsf;
-        const float tx = m[2 * i] / tsf, ty = m[2 * i + 1] / tsf;
-        rc[0] = clampi(std::floor(tx - tr), tile_width);
-        rc[1] = clampi(std::floor(ty - tr), tile_height);
-        rc[2] = clampi(std::ceil(tx + tr), tile_width);
-        rc[3] = clampi(std::ceil(ty + tr), tile_height);
-        tpg[i] = (rc[3] - rc[1]) * (rc[2] - rc[0]);
+        const vi live = rad > zero;  // radius 0: no tiles
+        const vf tr = rad / tsf, tx = mx / tsf, ty = my / tsf;
+        const vi a = clampi(vfloor(tx - tr), tw) & live, b = clampi(vfloor(ty - tr), th) & live;
+        const vi c = clampi(vceil(tx + tr), tw) & live, d = clampi(vceil(ty + tr), th) & live;
+        const vi n = (d - b) * (c - a);
+        for (int l = 0; l < L; ++l) {
+            rc.x0[i0 + l] = a[l];
+            rc.y0[i0 + l] = b[l];
+            rc.x1[i0 + l] = c[l];
+            rc.y1[i0 + l] = d[l];
+            tpg[i0 + l] = n[l];
+        }
     }
-    // Order of the live Gaussians of each camera by (depth, index): stable LSD radix
-    // sort (4 x 8 bits) of an order-preserving uint32 image of the float depth.  For
-    // positive depths (the only ones with radii > 0 when near_plane > 0) this is
-    // gsplat's order (its key is the float's bit pattern); for negative depths gsplat's
-    // key is ill-defined and we simply use the float order.
-    std::vector<int32_t> order((size_t)CN, -1);
+    return rc;
+}
+
+// Per camera, the Gaussians with tiles in (depth, index) order: stable LSD radix sort (4 x 8 bits) of
+// an order-preserving uint32 image of the float depth.  For positive depths (the only ones with
+// radii > 0 when near_plane > 0) this is gsplat's order (its key is the float's bit pattern); for
+// negative depths gsplat's key is ill-defined and we simply use the float order.  order[c * N + s] is
+// the s-th Gaussian of camera c, for s < n_live[c].
+std::vector<int32_t> depth_order(
+    int64_t C, int64_t N, const int32_t *tpg, const float *dep, std::vector<int64_t> &n_live_out, int nt
+) {
+    std::vector<int32_t> order((size_t)(C * N), -1);
+    n_live_out.assign((size_t)C, 0);
 #pragma omp parallel num_threads(nt)
     {
         std::vector<uint32_t> key_a, key_b;
@@ -962,6 +982,7 @@ std::vector<torch::Tensor> isect_tiles(
                 key_a.push_back((kbits & 0x80000000u) ? ~kbits : (kbits ^ 0x80000000u));
                 o[n_live++] = (int32_t)i;
             }
+            n_live_out[c] = n_live;
             if (n_live == 0) continue;
             key_b.resize(n_live);
             id_b.resize(n_live);
@@ -983,40 +1004,97 @@ std::vector<torch::Tensor> isect_tiles(
             if (ia != o) std::memcpy(o, ia, sizeof(int32_t) * n_live);
         }
     }
-    // counting sort into (camera, tile) buckets, visiting Gaussians in depth order
-    std::vector<int64_t> counts((size_t)C * n_tiles + 1, 0);
-    for (int64_t i = 0; i < CN; ++i) {
-        if (tpg[i] <= 0) continue;
-        const int32_t *rc = rect.data() + 4 * i;
-        int64_t *cc = counts.data() + (i / std::max<int64_t>(N, 1)) * n_tiles;
-        for (int32_t y = rc[1]; y < rc[3]; ++y)
-            for (int32_t x = rc[0]; x < rc[2]; ++x) cc[(int64_t)y * tile_width + x] += 1;
-    }
+    return order;
+}
+
+// The tile lists (offsets [C, tiles_y, tiles_x], flatten_ids) from the depth order: a parallel
+// counting sort.  Thread t takes the t-th chunk of each camera's depth order, counts its pairs per
+// tile, and after a prefix sum writes them from its own cursor, which lies after the cursors of
+// threads t' < t: every list stays in depth order, the same for any thread count.
+std::vector<torch::Tensor> bin_by_tile(
+    int64_t C, int64_t N, int64_t tile_width, int64_t tile_height, const TileRects &rc,
+    const int32_t *order, const std::vector<int64_t> &n_live, const torch::TensorOptions &iopt, int nt
+) {
+    const int64_t n_tiles = tile_width * tile_height, n_bins = C * n_tiles;
     auto offsets = torch::empty({C, tile_height, tile_width}, iopt);
     int32_t *off = offsets.data_ptr<int32_t>();
-    int64_t total = 0;
-    std::vector<int64_t> cursor((size_t)C * n_tiles);
-    for (int64_t b = 0; b < C * n_tiles; ++b) {
-        TORCH_CHECK(total <= (int64_t)std::numeric_limits<int32_t>::max(), "too many intersections");
-        off[b] = (int32_t)total;
-        cursor[b] = total;
-        total += counts[b];
-    }
-    TORCH_CHECK(total <= (int64_t)std::numeric_limits<int32_t>::max(), "too many intersections");
-    auto flatten_ids = torch::empty({total}, iopt);
-    int32_t *fid = flatten_ids.data_ptr<int32_t>();
-    for (int64_t c = 0; c < C; ++c) {
-        const int32_t *o = order.data() + c * N;
-        int64_t *cur = cursor.data() + c * n_tiles;
-        for (int64_t s = 0; s < N; ++s) {
-            const int32_t i = o[s];
-            if (i < 0) break;
-            const int64_t gi = c * N + i;
-            const int32_t *rc = rect.data() + 4 * gi;
-            for (int32_t y = rc[1]; y < rc[3]; ++y)
-                for (int32_t x = rc[0]; x < rc[2]; ++x) fid[cur[(int64_t)y * tile_width + x]++] = (int32_t)gi;
+    torch::Tensor flatten_ids;
+    std::vector<int64_t> cursors((size_t)(nt * n_bins), 0);  // per thread: counts, then cursors
+    bool overflow = false;
+    const int32_t *__restrict__ x0s = rc.x0.data(), *__restrict__ x1s = rc.x1.data();
+    const int32_t *__restrict__ y0s = rc.y0.data(), *__restrict__ y1s = rc.y1.data();
+#pragma omp parallel num_threads(nt)
+    {
+        const int t = omp_get_thread_num(), T = omp_get_num_threads();
+        int64_t *cur = cursors.data() + t * n_bins;
+        for (int pass = 0; pass < 2; ++pass) {
+            for (int64_t c = 0; c < C; ++c) {
+                const int32_t *__restrict__ o = order + c * N;
+                int64_t *__restrict__ cur_c = cur + c * n_tiles;
+                int32_t *__restrict__ fid = pass == 1 ? flatten_ids.data_ptr<int32_t>() : nullptr;
+                const int64_t s0 = n_live[c] * t / T, s1 = n_live[c] * (t + 1) / T;
+                for (int64_t s = s0; s < s1; ++s) {
+                    const int64_t gi = c * N + o[s];
+                    const int32_t x0 = x0s[gi], x1 = x1s[gi], y1 = y1s[gi];
+                    for (int32_t y = y0s[gi]; y < y1; ++y) {
+                        int64_t *__restrict__ row = cur_c + (int64_t)y * tile_width;
+                        if (pass == 0) {
+                            for (int32_t x = x0; x < x1; ++x) row[x] += 1;
+                        } else {
+                            for (int32_t x = x0; x < x1; ++x) fid[row[x]++] = (int32_t)gi;
+                        }
+                    }
+                }
+            }
+            if (pass == 1) break;
+#pragma omp barrier
+#pragma omp single
+            {
+                int64_t total = 0;
+                for (int64_t b = 0; b < n_bins; ++b) {
+                    overflow |= total > (int64_t)std::numeric_limits<int32_t>::max();
+                    off[b] = (int32_t)total;
+                    for (int u = 0; u < T; ++u) {
+                        const int64_t n = cursors[u * n_bins + b];
+                        cursors[u * n_bins + b] = total;
+                        total += n;
+                    }
+                }
+                overflow |= total > (int64_t)std::numeric_limits<int32_t>::max();
+                flatten_ids = torch::empty({overflow ? 0 : total}, iopt);
+            }  // implicit barrier
+            if (overflow) break;
         }
     }
+    TORCH_CHECK(!overflow, "too many intersections");
+    return {offsets, flatten_ids};
+}
+
+std::vector<torch::Tensor> isect_tiles(
+    const torch::Tensor &means2d, const torch::Tensor &radii, const torch::Tensor &depths, int64_t tile_size,
+    int64_t tile_width, int64_t tile_height, int64_t n_threads
+) {
+    check_cpu_f32(means2d, "means2d");
+    check_cpu_i32(radii, "radii");
+    check_cpu_f32(depths, "depths");
+    TORCH_CHECK(means2d.dim() == 3 && means2d.size(2) == 2, "means2d must be [C, N, 2]");
+    const int64_t C = means2d.size(0), N = means2d.size(1);
+    TORCH_CHECK(radii.numel() == C * N && depths.numel() == C * N, "radii/depths must be [C, N]");
+    TORCH_CHECK(tile_size >= 1 && tile_width >= 0 && tile_height >= 0, "bad tile grid");
+    const int64_t n_tiles = tile_width * tile_height;
+    TORCH_CHECK(n_tiles < (int64_t)std::numeric_limits<int32_t>::max(), "too many tiles");
+    const int nt = resolve_threads(n_threads);
+    auto iopt = means2d.options().dtype(torch::kInt32);
+    auto tiles_per_gauss = torch::empty({C, N}, iopt);
+    int32_t *tpg = tiles_per_gauss.data_ptr<int32_t>();
+    const TileRects rc = tile_rects(
+        C * N, means2d.data_ptr<float>(), radii.data_ptr<int32_t>(), (float)tile_size, tile_width, tile_height,
+        tpg, nt
+    );
+    std::vector<int64_t> n_live;
+    const std::vector<int32_t> order = depth_order(C, N, tpg, depths.data_ptr<float>(), n_live, nt);
+    std::vector<torch::Tensor> lists = bin_by_tile(C, N, tile_width, tile_height, rc, order.data(), n_live, iopt, nt);
+    const torch::Tensor &offsets = lists[0], &flatten_ids = lists[1];
     return {offsets, flatten_ids, tiles_per_gauss};
 }
 
