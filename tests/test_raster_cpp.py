@@ -336,6 +336,18 @@ def test_tile_sizes_not_a_multiple_of_the_vector_width(ext, tile_size):
     check_against_reference(1, 90, 45, 31, D=3, seed=30 + tile_size, tile_size=tile_size)
 
 
+def test_isect_tiles_same_lists_for_any_thread_count(ext):
+    # the lists are binned by a parallel counting sort: each thread's chunk of the depth order
+    # must land after the chunks of the threads before it
+    C, N, W, H = 2, 400, 70, 45
+    means2d, _, _, _, radii, depths = make_gaussians(C, N, W, H, seed=5, discrete_depths=True)
+    tw, th = math.ceil(W / 8), math.ceil(H / 8)
+    lists = [ext.isect_tiles(means2d, radii, depths, 8, tw, th, n) for n in (1, 2, 3, 5)]
+    assert lists[0][1].numel() > 2 * N
+    for other in lists[1:]:
+        assert all(torch.equal(a, b) for a, b in zip(lists[0], other, strict=True))
+
+
 def test_no_background(ext):
     check_against_reference(2, 70, 33, 40, D=4, seed=9, with_bg=False)
 
