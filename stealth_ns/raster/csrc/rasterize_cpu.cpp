@@ -131,7 +131,6 @@ inline vf vfloor(vf x) {
 // Comparisons are ordered and quiet, as the vector operators: false when a lane is NaN.
 #if defined(__AVX512VL__) && defined(__AVX512DQ__)
 typedef __mmask8 lmask;
-inline lmask m_lt(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_LT_OQ); }
 inline lmask m_le(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_LE_OQ); }
 inline lmask m_ge(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_GE_OQ); }
 inline lmask m_ilt(vi a, vi b) { return _mm256_cmplt_epi32_mask((__m256i)a, (__m256i)b); }
@@ -145,7 +144,6 @@ inline vf m_sel(lmask m, vf a, vf b) { return (vf)_mm256_mask_blend_ps(m, (__m25
 inline vi m_seli(lmask m, vi a, vi b) { return (vi)_mm256_mask_blend_epi32(m, (__m256i)b, (__m256i)a); }
 #else
 typedef vi lmask;
-inline lmask m_lt(vf a, vf b) { return a < b; }
 inline lmask m_le(vf a, vf b) { return a <= b; }
 inline lmask m_ge(vf a, vf b) { return a >= b; }
 inline lmask m_ilt(vi a, vi b) { return a < b; }
@@ -1026,44 +1024,42 @@ std::vector<torch::Tensor> bin_by_tile(
 #pragma omp parallel num_threads(nt)
     {
         const int t = omp_get_thread_num(), T = omp_get_num_threads();
-        int64_t *cur = cursors.data() + t * n_bins;
-        for (int pass = 0; pass < 2; ++pass) {
+        int64_t *__restrict__ cur = cursors.data() + t * n_bins;
+        // on_pair(bin, Gaussian) for every pair of this thread's chunks, in depth order
+        auto visit_pairs = [&](auto &&on_pair) {
             for (int64_t c = 0; c < C; ++c) {
                 const int32_t *__restrict__ o = order + c * N;
-                int64_t *__restrict__ cur_c = cur + c * n_tiles;
-                int32_t *__restrict__ fid = pass == 1 ? flatten_ids.data_ptr<int32_t>() : nullptr;
                 const int64_t s0 = n_live[c] * t / T, s1 = n_live[c] * (t + 1) / T;
                 for (int64_t s = s0; s < s1; ++s) {
                     const int64_t gi = c * N + o[s];
                     const int32_t x0 = x0s[gi], x1 = x1s[gi], y1 = y1s[gi];
                     for (int32_t y = y0s[gi]; y < y1; ++y) {
-                        int64_t *__restrict__ row = cur_c + (int64_t)y * tile_width;
-                        if (pass == 0) {
-                            for (int32_t x = x0; x < x1; ++x) row[x] += 1;
-                        } else {
-                            for (int32_t x = x0; x < x1; ++x) fid[row[x]++] = (int32_t)gi;
-                        }
+                        const int64_t row = c * n_tiles + (int64_t)y * tile_width;
+                        for (int32_t x = x0; x < x1; ++x) on_pair(row + x, (int32_t)gi);
                     }
                 }
             }
-            if (pass == 1) break;
+        };
+        visit_pairs([&](int64_t bin, int32_t) { cur[bin] += 1; });
 #pragma omp barrier
 #pragma omp single
-            {
-                int64_t total = 0;
-                for (int64_t b = 0; b < n_bins; ++b) {
-                    overflow |= total > (int64_t)std::numeric_limits<int32_t>::max();
-                    off[b] = (int32_t)total;
-                    for (int u = 0; u < T; ++u) {
-                        const int64_t n = cursors[u * n_bins + b];
-                        cursors[u * n_bins + b] = total;
-                        total += n;
-                    }
-                }
+        {
+            int64_t total = 0;
+            for (int64_t b = 0; b < n_bins; ++b) {
                 overflow |= total > (int64_t)std::numeric_limits<int32_t>::max();
-                flatten_ids = torch::empty({overflow ? 0 : total}, iopt);
-            }  // implicit barrier
-            if (overflow) break;
+                off[b] = (int32_t)total;
+                for (int u = 0; u < T; ++u) {
+                    const int64_t n = cursors[u * n_bins + b];
+                    cursors[u * n_bins + b] = total;
+                    total += n;
+                }
+            }
+            overflow |= total > (int64_t)std::numeric_limits<int32_t>::max();
+            flatten_ids = torch::empty({overflow ? 0 : total}, iopt);
+        }  // implicit barrier
+        if (!overflow) {
+            int32_t *__restrict__ fid = flatten_ids.data_ptr<int32_t>();
+            visit_pairs([&](int64_t bin, int32_t gi) { fid[cur[bin]++] = gi; });
         }
     }
     TORCH_CHECK(!overflow, "too many intersections");
