@@ -1,7 +1,8 @@
 """Compiled CPU backend of 3D Gaussian Splatting: projection + SH, tile intersection, rasterize-to-pixels.
 
-The C++ sources (``csrc/rasterize_cpu.cpp``, ``csrc/project_cpu.cpp``, ``csrc/ssim_cpu.cpp``) are
-compiled on first use with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP) into a cache directory:
+The C++ sources (``csrc/rasterize_cpu.cpp``, ``csrc/project_cpu.cpp``, ``csrc/ssim_cpu.cpp``,
+``csrc/densify_cpu.cpp``) are compiled on first use with ``torch.utils.cpp_extension.load`` (g++ +
+ninja, OpenMP) into a cache directory:
 
 * ``$STEALTH_NS_CACHE/torch_ext/<key>`` when ``STEALTH_NS_CACHE`` is set,
 * ``~/.cache/stealth_ns/torch_ext/<key>`` otherwise,
@@ -15,7 +16,8 @@ returns ``None`` and :func:`compile_error` says why.
 The kernels mirror gsplat 1.4.0's CUDA ``rasterize_to_pixels`` forward/backward (see the header of
 the C++ file for the exact semantics), its ``isect_tiles`` + ``isect_offset_encode``, and its
 projection and SH (forward and backward; ``projection.py`` is their torch reference); the same
-module holds the training loss's SSIM (``stealth_ns/ssim.py``; pytorch_msssim is its reference).
+module holds the training loss's SSIM (``stealth_ns/ssim.py``; pytorch_msssim is its reference) and the
+densification statistics (``stealth_ns/densification.py``; its torch code is their reference).
 """
 
 from __future__ import annotations
@@ -51,8 +53,8 @@ __all__ = [
 
 EXTENSION_NAME = "stealth_ns_raster_cpu"
 _CSRC = Path(__file__).resolve().parent / "csrc"
-_SOURCES = (_CSRC / "rasterize_cpu.cpp", _CSRC / "project_cpu.cpp", _CSRC / "ssim_cpu.cpp")
-_HEADERS = (_CSRC / "project_cpu.h", _CSRC / "ssim_cpu.h", _CSRC / "tensor_checks.h")
+_SOURCES = tuple(_CSRC / f"{name}_cpu.cpp" for name in ("rasterize", "project", "ssim", "densify"))
+_HEADERS = (*(_CSRC / f"{name}_cpu.h" for name in ("project", "ssim", "densify")), _CSRC / "tensor_checks.h")
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that
 # decide which (pixel, Gaussian) pairs pass the alpha >= 1/255 test, so forward and backward could
 # disagree.  -ffp-contract=off for the same reason (no FMA contraction that may differ between the

@@ -47,6 +47,7 @@
 
 #include <torch/extension.h>
 
+#include "densify_cpu.h"
 #include "project_cpu.h"
 #include "ssim_cpu.h"
 #include "tensor_checks.h"
@@ -1123,4 +1124,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("C2"), py::arg("need_grad"));
     m.def("ssim_bwd", &stealth_ns::ssim_bwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("dmaps"),
           py::arg("v_planes"));
+    m.def("densify_stats", &stealth_ns::densify_stats, py::arg("grad2d"), py::arg("count"), py::arg("max_radii"),
+          py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
 }
