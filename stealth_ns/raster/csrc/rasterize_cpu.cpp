@@ -489,13 +489,13 @@ void fwd_impl(
                         vist(donep + o, done | m_lanes(term));
                         active -= m_count(term);
                     }
-                    const vf vis = e.alpha * T;
+                    // zero weight where the lane does not contribute: adds exactly +-0 (finite colours)
+                    const vf vis = m_sel(contrib, e.alpha * T, vset(0.f));
                     vst(Tp + o, m_sel(contrib, next_T, T));
                     vist(lastp + o, m_seli(contrib, idxv, vild(lastp + o)));
                     for (int k = 0; k < D; ++k) {
                         float *__restrict__ cp = colp + (size_t)k * npad + o;
-                        const vf cur = vld(cp);
-                        vst(cp, m_sel(contrib, cur + cptr[k] * vis, cur));
+                        vst(cp, vld(cp) + cptr[k] * vis);
                     }
                 }
             }
@@ -643,29 +643,32 @@ void bwd_impl(
                     const vf ra = 1.f / (1.f - e.alpha);
                     const vf T = m_sel(valid, vld(Tp + o) * ra, vld(Tp + o));
                     vst(Tp + o, T);
-                    const vf fac = e.alpha * T;
+                    // lanes that do not contribute get a zero factor: they add exactly +-0 below, which
+                    // leaves the sums bitwise as they were (the operands are finite wherever the colours
+                    // and upstream gradients are)
                     const vf zero = vset(0.f);
+                    const vf fac = m_sel(valid, e.alpha * T, zero);
                     vf v_alpha = zero;
                     for (int k = 0; k < D; ++k) {
                         const vf vo = vld(voutp + (size_t)k * npad + o);
                         const vf ac = vld(accp + (size_t)k * npad + o);
-                        grgb[k] += m_sel(valid, fac * vo, zero);
+                        grgb[k] += fac * vo;
                         v_alpha += (cptr[k] * T - ac * ra) * vo;
                     }
                     v_alpha += ra * vld(wp + o);
                     const lmask unclamped = valid & m_le(op * e.vis, vset(kAlphaMax));
-                    const vf v_sigma = -op * e.vis * v_alpha;
+                    const vf vis = m_sel(unclamped, e.vis, zero);
+                    const vf v_sigma = -op * vis * v_alpha;
                     const vf dx = e.dx;
-                    g_ca += m_sel(unclamped, 0.5f * v_sigma * dx * dx, zero);
-                    g_cb += m_sel(unclamped, v_sigma * dx * dy, zero);
-                    g_cc += m_sel(unclamped, 0.5f * v_sigma * dy * dy, zero);
-                    g_x += m_sel(unclamped, v_sigma * (ca * dx + cb * dy), zero);
-                    g_y += m_sel(unclamped, v_sigma * (cb * dx + cc * dy), zero);
-                    g_o += m_sel(unclamped, e.vis * v_alpha, zero);
+                    g_ca += 0.5f * v_sigma * dx * dx;
+                    g_cb += v_sigma * dx * dy;
+                    g_cc += 0.5f * v_sigma * dy * dy;
+                    g_x += v_sigma * (ca * dx + cb * dy);
+                    g_y += v_sigma * (cb * dx + cc * dy);
+                    g_o += vis * v_alpha;
                     for (int k = 0; k < D; ++k) {
                         float *__restrict__ acp = accp + (size_t)k * npad + o;
-                        const vf ac = vld(acp);
-                        vst(acp, m_sel(valid, ac + cptr[k] * fac, ac));
+                        vst(acp, vld(acp) + cptr[k] * fac);
                     }
                 }
                 if (!m_any(any)) continue;
