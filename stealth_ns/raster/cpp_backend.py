@@ -1,8 +1,9 @@
 """Compiled CPU backend of 3D Gaussian Splatting: projection + SH, tile intersection, rasterize-to-pixels.
 
 The C++ sources (``csrc/rasterize_cpu.cpp``, ``csrc/project_cpu.cpp``, ``csrc/ssim_cpu.cpp``,
-``csrc/densify_cpu.cpp``) are compiled on first use with ``torch.utils.cpp_extension.load`` (g++ +
-ninja, OpenMP) into a cache directory:
+``csrc/densify_cpu.cpp`` and their Python bindings ``csrc/bindings.cpp``) are compiled on first use
+with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP; about 25 s on 2 cores) into a cache
+directory:
 
 * ``$STEALTH_NS_CACHE/torch_ext/<key>`` when ``STEALTH_NS_CACHE`` is set,
 * ``~/.cache/stealth_ns/torch_ext/<key>`` otherwise,
@@ -53,8 +54,9 @@ __all__ = [
 
 EXTENSION_NAME = "stealth_ns_raster_cpu"
 _CSRC = Path(__file__).resolve().parent / "csrc"
-_SOURCES = tuple(_CSRC / f"{name}_cpu.cpp" for name in ("rasterize", "project", "ssim", "densify"))
-_HEADERS = (*(_CSRC / f"{name}_cpu.h" for name in ("project", "ssim", "densify")), _CSRC / "tensor_checks.h")
+_KERNELS = ("rasterize", "project", "ssim", "densify")  # csrc/<name>_cpu.cpp + .h, bound in bindings.cpp
+_SOURCES = (*(_CSRC / f"{name}_cpu.cpp" for name in _KERNELS), _CSRC / "bindings.cpp")
+_HEADERS = (*(_CSRC / f"{name}_cpu.h" for name in _KERNELS), _CSRC / "tensor_checks.h")
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that
 # decide which (pixel, Gaussian) pairs pass the alpha >= 1/255 test, so forward and backward could
 # disagree.  -ffp-contract=off for the same reason (no FMA contraction that may differ between the

@@ -20,8 +20,8 @@
 
 namespace stealth_ns {
 
-void densify_stats(torch::Tensor &grad2d, torch::Tensor &count, const std::optional<torch::Tensor> &max_radii,
-                   const torch::Tensor &grads, const torch::Tensor &radii, double scale_x, double scale_y,
+void densify_stats(at::Tensor &grad2d, at::Tensor &count, const std::optional<at::Tensor> &max_radii,
+                   const at::Tensor &grads, const at::Tensor &radii, double scale_x, double scale_y,
                    double size) {
     check_cpu_f32(grads, "grads");
     check_cpu_i32(radii, "radii");

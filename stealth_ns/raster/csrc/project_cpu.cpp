@@ -23,6 +23,8 @@
 #include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
+#include <ATen/ops/empty.h>
+#include <ATen/ops/empty_like.h>
 
 #include <algorithm>
 #include <cmath>
@@ -80,7 +82,7 @@ struct Camera {
     float centre[3];  // -R^T t
 };
 
-std::vector<Camera> cameras(const torch::Tensor &viewmats, const torch::Tensor &Ks, int64_t width, int64_t height) {
+std::vector<Camera> cameras(const at::Tensor &viewmats, const at::Tensor &Ks, int64_t width, int64_t height) {
     check_cpu_f32(viewmats, "viewmats");
     TORCH_CHECK(viewmats.dim() == 3 && viewmats.size(1) == 4 && viewmats.size(2) == 4, "viewmats must be [C, 4, 4]");
     const int64_t C = viewmats.size(0);
@@ -307,8 +309,8 @@ struct ShInputs {
     int degree, k_used;
 };
 
-ShInputs check_sh(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &dc,
-                  const torch::Tensor &rest, int64_t degree, const torch::Tensor &radii) {
+ShInputs check_sh(const at::Tensor &means, const at::Tensor &viewmats, const at::Tensor &dc,
+                  const at::Tensor &rest, int64_t degree, const at::Tensor &radii) {
     check_cpu_f32(means, "means");
     check_cpu_f32(dc, "sh_dc");
     check_cpu_f32(rest, "sh_rest");
@@ -372,9 +374,9 @@ inline void sh_sum(const ShInputs &in, const vf *Y, const vf coef[48], vf v[3]) 
 
 }  // namespace
 
-std::vector<torch::Tensor> project_fwd(const torch::Tensor &means, const torch::Tensor &quats,
-                                       const torch::Tensor &scales, const torch::Tensor &viewmats,
-                                       const torch::Tensor &Ks, int64_t width, int64_t height, double eps2d,
+std::vector<at::Tensor> project_fwd(const at::Tensor &means, const at::Tensor &quats,
+                                       const at::Tensor &scales, const at::Tensor &viewmats,
+                                       const at::Tensor &Ks, int64_t width, int64_t height, double eps2d,
                                        double near_plane, double far_plane, double radius_clip) {
     check_cpu_f32(means, "means");
     check_cpu_f32(quats, "quats");
@@ -386,10 +388,10 @@ std::vector<torch::Tensor> project_fwd(const torch::Tensor &means, const torch::
     const std::vector<Camera> cams = cameras(viewmats, Ks, width, height);
     const int64_t C = (int64_t)cams.size();
     auto fopt = means.options();
-    auto radii = torch::empty({C, N}, fopt.dtype(torch::kInt32));
-    auto means2d = torch::empty({C, N, 2}, fopt);
-    auto depths = torch::empty({C, N}, fopt);
-    auto conics = torch::empty({C, N, 3}, fopt);
+    auto radii = at::empty({C, N}, fopt.dtype(at::kInt));
+    auto means2d = at::empty({C, N, 2}, fopt);
+    auto depths = at::empty({C, N}, fopt);
+    auto conics = at::empty({C, N, 3}, fopt);
     const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
     int32_t *r_out = radii.data_ptr<int32_t>();
     float *m2_out = means2d.data_ptr<float>(), *d_out = depths.data_ptr<float>(), *c_out = conics.data_ptr<float>();
@@ -420,11 +422,11 @@ std::vector<torch::Tensor> project_fwd(const torch::Tensor &means, const torch::
     return {radii, means2d, depths, conics};
 }
 
-std::vector<torch::Tensor> project_bwd(const torch::Tensor &means, const torch::Tensor &quats,
-                                       const torch::Tensor &scales, const torch::Tensor &viewmats,
-                                       const torch::Tensor &Ks, int64_t width, int64_t height, double eps2d,
-                                       const torch::Tensor &radii, const torch::Tensor &v_means2d,
-                                       const torch::Tensor &v_depths, const torch::Tensor &v_conics) {
+std::vector<at::Tensor> project_bwd(const at::Tensor &means, const at::Tensor &quats,
+                                       const at::Tensor &scales, const at::Tensor &viewmats,
+                                       const at::Tensor &Ks, int64_t width, int64_t height, double eps2d,
+                                       const at::Tensor &radii, const at::Tensor &v_means2d,
+                                       const at::Tensor &v_depths, const at::Tensor &v_conics) {
     check_cpu_f32(v_means2d, "v_means2d");
     check_cpu_f32(v_depths, "v_depths");
     check_cpu_f32(v_conics, "v_conics");
@@ -433,9 +435,9 @@ std::vector<torch::Tensor> project_bwd(const torch::Tensor &means, const torch::
     TORCH_CHECK(radii.numel() == C * N && v_means2d.numel() == 2 * C * N && v_depths.numel() == C * N &&
                     v_conics.numel() == 3 * C * N,
                 "gradients must be [C, N, ...]");
-    auto v_means = torch::empty({N, 3}, means.options());
-    auto v_quats = torch::empty({N, 4}, means.options());
-    auto v_scales = torch::empty({N, 3}, means.options());
+    auto v_means = at::empty({N, 3}, means.options());
+    auto v_quats = at::empty({N, 4}, means.options());
+    auto v_scales = at::empty({N, 3}, means.options());
     const float *m = means.data_ptr<float>(), *q = quats.data_ptr<float>(), *s = scales.data_ptr<float>();
     const int32_t *r = radii.data_ptr<int32_t>();
     const float *g2 = v_means2d.data_ptr<float>(), *gd = v_depths.data_ptr<float>(), *gc = v_conics.data_ptr<float>();
@@ -500,11 +502,11 @@ std::vector<torch::Tensor> project_bwd(const torch::Tensor &means, const torch::
     return {v_means, v_quats, v_scales};
 }
 
-torch::Tensor sh_fwd(const torch::Tensor &means, const torch::Tensor &viewmats, const torch::Tensor &dc,
-                     const torch::Tensor &rest, int64_t degree, const torch::Tensor &radii) {
+at::Tensor sh_fwd(const at::Tensor &means, const at::Tensor &viewmats, const at::Tensor &dc,
+                     const at::Tensor &rest, int64_t degree, const at::Tensor &radii) {
     const ShInputs in = check_sh(means, viewmats, dc, rest, degree, radii);
-    const std::vector<Camera> cams = cameras(viewmats, torch::Tensor(), 0, 0);
-    auto colors = torch::empty({in.C, in.N, 3}, means.options());
+    const std::vector<Camera> cams = cameras(viewmats, at::Tensor(), 0, 0);
+    auto colors = at::empty({in.C, in.N, 3}, means.options());
     const float *m = means.data_ptr<float>(), *cdc = dc.data_ptr<float>(), *crest = rest.data_ptr<float>();
     const int32_t *r = radii.data_ptr<int32_t>();
     float *out = colors.data_ptr<float>();
@@ -529,17 +531,17 @@ torch::Tensor sh_fwd(const torch::Tensor &means, const torch::Tensor &viewmats, 
     return colors;
 }
 
-std::vector<torch::Tensor> sh_bwd(const torch::Tensor &means, const torch::Tensor &viewmats,
-                                  const torch::Tensor &dc, const torch::Tensor &rest, int64_t degree,
-                                  const torch::Tensor &radii, const torch::Tensor &v_colors) {
+std::vector<at::Tensor> sh_bwd(const at::Tensor &means, const at::Tensor &viewmats,
+                                  const at::Tensor &dc, const at::Tensor &rest, int64_t degree,
+                                  const at::Tensor &radii, const at::Tensor &v_colors) {
     const ShInputs in = check_sh(means, viewmats, dc, rest, degree, radii);
     check_cpu_f32(v_colors, "v_colors");
     TORCH_CHECK(v_colors.numel() == in.C * in.N * 3, "v_colors must be [C, N, 3]");
-    const std::vector<Camera> cams = cameras(viewmats, torch::Tensor(), 0, 0);
+    const std::vector<Camera> cams = cameras(viewmats, at::Tensor(), 0, 0);
     // each task zero-fills its own rows (in cache) and writes the Gaussians some camera sees
-    auto v_dc = torch::empty_like(dc);
-    auto v_rest = torch::empty_like(rest);
-    auto v_means = torch::empty({in.N, 3}, means.options());
+    auto v_dc = at::empty_like(dc);
+    auto v_rest = at::empty_like(rest);
+    auto v_means = at::empty({in.N, 3}, means.options());
     const float *m = means.data_ptr<float>(), *cdc = dc.data_ptr<float>(), *crest = rest.data_ptr<float>();
     const float *g = v_colors.data_ptr<float>();
     const int32_t *r = radii.data_ptr<int32_t>();

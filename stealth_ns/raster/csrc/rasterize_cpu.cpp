@@ -45,14 +45,12 @@
 //   1: OpenMP atomics straight into the gradient tensors;
 //   2: per-thread [C*N, 6 + D] buffers reduced at the end.
 
-#include <torch/extension.h>
-
-#include "densify_cpu.h"
-#include "project_cpu.h"
-#include "ssim_cpu.h"
+#include "rasterize_cpu.h"
 #include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
+#include <ATen/ops/empty.h>
+#include <ATen/ops/zeros.h>
 #include <immintrin.h>
 #include <omp.h>
 
@@ -65,6 +63,7 @@
 #include <numeric>
 #include <vector>
 
+namespace stealth_ns {
 namespace {
 
 constexpr float kAlphaMin = 1.f / 255.f;
@@ -754,7 +753,7 @@ using stealth_ns::check_cpu_i32;
 
 // Out-of-range offsets / ids would make the kernels read out of bounds: check them
 // (O(tiles + n_isects), negligible next to the rasterization).
-void validate_lists(const torch::Tensor &isect_offsets, const torch::Tensor &flatten_ids, int64_t CN) {
+void validate_lists(const at::Tensor &isect_offsets, const at::Tensor &flatten_ids, int64_t CN) {
     const int32_t *off = isect_offsets.data_ptr<int32_t>();
     const int64_t n_off = isect_offsets.numel(), n = flatten_ids.numel();
     int64_t prev = 0;
@@ -786,13 +785,15 @@ int resolve_threads(int64_t n_threads) {
     default: FN<0>(__VA_ARGS__); break;        \
     }
 
+}  // namespace
+
 // Returns (render_colors [C,H,W,D], render_alphas [C,H,W,1], last_ids [C,H,W] int32,
 //          T_final [C,H,W]).  last_ids is -1 for pixels without contributor.
-std::vector<torch::Tensor> rasterize_fwd(
-    const torch::Tensor &means2d, const torch::Tensor &conics, const torch::Tensor &colors,
-    const torch::Tensor &opacities, const c10::optional<torch::Tensor> &backgrounds, int64_t image_width,
-    int64_t image_height, int64_t tile_size, const torch::Tensor &isect_offsets,
-    const torch::Tensor &flatten_ids, bool cull, int64_t n_threads
+std::vector<at::Tensor> rasterize_fwd(
+    const at::Tensor &means2d, const at::Tensor &conics, const at::Tensor &colors,
+    const at::Tensor &opacities, const std::optional<at::Tensor> &backgrounds, int64_t image_width,
+    int64_t image_height, int64_t tile_size, const at::Tensor &isect_offsets,
+    const at::Tensor &flatten_ids, bool cull, int64_t n_threads
 ) {
     check_cpu_f32(means2d, "means2d");
     check_cpu_f32(conics, "conics");
@@ -822,10 +823,10 @@ std::vector<torch::Tensor> rasterize_fwd(
         bg = backgrounds->data_ptr<float>();
     }
     auto fopt = means2d.options();
-    auto out_colors = torch::empty({C, image_height, image_width, D}, fopt);
-    auto out_alphas = torch::empty({C, image_height, image_width, 1}, fopt);
-    auto out_T = torch::empty({C, image_height, image_width}, fopt);
-    auto out_last = torch::empty({C, image_height, image_width}, fopt.dtype(torch::kInt32));
+    auto out_colors = at::empty({C, image_height, image_width, D}, fopt);
+    auto out_alphas = at::empty({C, image_height, image_width, 1}, fopt);
+    auto out_T = at::empty({C, image_height, image_width}, fopt);
+    auto out_last = at::empty({C, image_height, image_width}, fopt.dtype(at::kInt));
     const int64_t n_isects = flatten_ids.numel();
     TORCH_CHECK(n_isects < (int64_t)std::numeric_limits<int32_t>::max(), "too many intersections");
     validate_lists(isect_offsets, flatten_ids, C * N);
@@ -841,12 +842,12 @@ std::vector<torch::Tensor> rasterize_fwd(
 }
 
 // Returns (v_means2d [C,N,2], v_conics [C,N,3], v_colors [C,N,D], v_opacities [C,N]).
-std::vector<torch::Tensor> rasterize_bwd(
-    const torch::Tensor &means2d, const torch::Tensor &conics, const torch::Tensor &colors,
-    const torch::Tensor &opacities, const c10::optional<torch::Tensor> &backgrounds, int64_t image_width,
-    int64_t image_height, int64_t tile_size, const torch::Tensor &isect_offsets,
-    const torch::Tensor &flatten_ids, const torch::Tensor &T_final, const torch::Tensor &last_ids,
-    const torch::Tensor &v_render_colors, const torch::Tensor &v_render_alphas, bool cull, int64_t mode,
+std::vector<at::Tensor> rasterize_bwd(
+    const at::Tensor &means2d, const at::Tensor &conics, const at::Tensor &colors,
+    const at::Tensor &opacities, const std::optional<at::Tensor> &backgrounds, int64_t image_width,
+    int64_t image_height, int64_t tile_size, const at::Tensor &isect_offsets,
+    const at::Tensor &flatten_ids, const at::Tensor &T_final, const at::Tensor &last_ids,
+    const at::Tensor &v_render_colors, const at::Tensor &v_render_alphas, bool cull, int64_t mode,
     int64_t n_threads
 ) {
     check_cpu_f32(means2d, "means2d");
@@ -875,19 +876,19 @@ std::vector<torch::Tensor> rasterize_bwd(
     validate_lists(isect_offsets, flatten_ids, C * N);
     const int64_t tiles_y = isect_offsets.size(1), tiles_x = isect_offsets.size(2);
     auto fopt = means2d.options();
-    auto v_means2d = torch::zeros({C, N, 2}, fopt);
-    auto v_conics = torch::zeros({C, N, 3}, fopt);
-    auto v_colors = torch::zeros({C, N, D}, fopt);
-    auto v_opacities = torch::zeros({C, N}, fopt);
+    auto v_means2d = at::zeros({C, N, 2}, fopt);
+    auto v_conics = at::zeros({C, N, 3}, fopt);
+    auto v_colors = at::zeros({C, N, D}, fopt);
+    auto v_opacities = at::zeros({C, N}, fopt);
     const int64_t n_isects = flatten_ids.numel();
     const int nt = resolve_threads(n_threads);
-    torch::Tensor isect_buf, thread_buf;
+    at::Tensor isect_buf, thread_buf;
     float *isect_ptr = nullptr, *thread_ptr = nullptr;
     if (mode == 0) {
-        isect_buf = torch::zeros({std::max<int64_t>(n_isects, 1), 6 + D}, fopt);
+        isect_buf = at::zeros({std::max<int64_t>(n_isects, 1), 6 + D}, fopt);
         isect_ptr = isect_buf.data_ptr<float>();
     } else if (mode == 2) {
-        thread_buf = torch::zeros({(int64_t)nt, std::max<int64_t>(C * N, 1), 6 + D}, fopt);
+        thread_buf = at::zeros({(int64_t)nt, std::max<int64_t>(C * N, 1), 6 + D}, fopt);
         thread_ptr = thread_buf.data_ptr<float>();
     }
     TileGeom g{(int)image_width, (int)image_height, (int)tile_size, (int)tiles_x, (int)tiles_y};
@@ -901,6 +902,8 @@ std::vector<torch::Tensor> rasterize_bwd(
     );
     return {v_means2d, v_conics, v_colors, v_opacities};
 }
+
+namespace {
 
 // ---------------------------------------------------------------------------
 // Tile intersection (gsplat isect_tiles + isect_offset_encode, non-packed).
@@ -1013,14 +1016,14 @@ std::vector<int32_t> depth_order(
 // counting sort.  Thread t takes the t-th chunk of each camera's depth order, counts its pairs per
 // tile, and after a prefix sum writes them from its own cursor, which lies after the cursors of
 // threads t' < t: every list stays in depth order, the same for any thread count.
-std::vector<torch::Tensor> bin_by_tile(
+std::vector<at::Tensor> bin_by_tile(
     int64_t C, int64_t N, int64_t tile_width, int64_t tile_height, const TileRects &rc,
-    const int32_t *order, const std::vector<int64_t> &n_live, const torch::TensorOptions &iopt, int nt
+    const int32_t *order, const std::vector<int64_t> &n_live, const at::TensorOptions &iopt, int nt
 ) {
     const int64_t n_tiles = tile_width * tile_height, n_bins = C * n_tiles;
-    auto offsets = torch::empty({C, tile_height, tile_width}, iopt);
+    auto offsets = at::empty({C, tile_height, tile_width}, iopt);
     int32_t *off = offsets.data_ptr<int32_t>();
-    torch::Tensor flatten_ids;
+    at::Tensor flatten_ids;
     std::vector<int64_t> cursors((size_t)(nt * n_bins), 0);  // per thread: counts, then cursors
     bool overflow = false;
     const int32_t *__restrict__ x0s = rc.x0.data(), *__restrict__ x1s = rc.x1.data();
@@ -1059,7 +1062,7 @@ std::vector<torch::Tensor> bin_by_tile(
                 }
             }
             overflow |= total > (int64_t)std::numeric_limits<int32_t>::max();
-            flatten_ids = torch::empty({overflow ? 0 : total}, iopt);
+            flatten_ids = at::empty({overflow ? 0 : total}, iopt);
         }  // implicit barrier
         if (!overflow) {
             int32_t *__restrict__ fid = flatten_ids.data_ptr<int32_t>();
@@ -1070,8 +1073,10 @@ std::vector<torch::Tensor> bin_by_tile(
     return {offsets, flatten_ids};
 }
 
-std::vector<torch::Tensor> isect_tiles(
-    const torch::Tensor &means2d, const torch::Tensor &radii, const torch::Tensor &depths, int64_t tile_size,
+}  // namespace
+
+std::vector<at::Tensor> isect_tiles(
+    const at::Tensor &means2d, const at::Tensor &radii, const at::Tensor &depths, int64_t tile_size,
     int64_t tile_width, int64_t tile_height, int64_t n_threads
 ) {
     check_cpu_f32(means2d, "means2d");
@@ -1084,8 +1089,8 @@ std::vector<torch::Tensor> isect_tiles(
     const int64_t n_tiles = tile_width * tile_height;
     TORCH_CHECK(n_tiles < (int64_t)std::numeric_limits<int32_t>::max(), "too many tiles");
     const int nt = resolve_threads(n_threads);
-    auto iopt = means2d.options().dtype(torch::kInt32);
-    auto tiles_per_gauss = torch::empty({C, N}, iopt);
+    auto iopt = means2d.options().dtype(at::kInt);
+    auto tiles_per_gauss = at::empty({C, N}, iopt);
     int32_t *tpg = tiles_per_gauss.data_ptr<int32_t>();
     const TileRects rc = tile_rects(
         C * N, means2d.data_ptr<float>(), radii.data_ptr<int32_t>(), (float)tile_size, tile_width, tile_height,
@@ -1093,40 +1098,9 @@ std::vector<torch::Tensor> isect_tiles(
     );
     std::vector<int64_t> n_live;
     const std::vector<int32_t> order = depth_order(C, N, tpg, depths.data_ptr<float>(), n_live, nt);
-    std::vector<torch::Tensor> lists = bin_by_tile(C, N, tile_width, tile_height, rc, order.data(), n_live, iopt, nt);
-    const torch::Tensor &offsets = lists[0], &flatten_ids = lists[1];
+    std::vector<at::Tensor> lists = bin_by_tile(C, N, tile_width, tile_height, rc, order.data(), n_live, iopt, nt);
+    const at::Tensor &offsets = lists[0], &flatten_ids = lists[1];
     return {offsets, flatten_ids, tiles_per_gauss};
 }
 
-}  // namespace
-
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.doc() = "stealth-ns CPU rasterizer (gsplat 1.4.0 rasterize_to_pixels equivalent)";
-    m.def("rasterize_fwd", &rasterize_fwd, py::arg("means2d"), py::arg("conics"), py::arg("colors"),
-          py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
-          py::arg("tile_size"), py::arg("isect_offsets"), py::arg("flatten_ids"), py::arg("cull") = true,
-          py::arg("n_threads") = 0);
-    m.def("rasterize_bwd", &rasterize_bwd, py::arg("means2d"), py::arg("conics"), py::arg("colors"),
-          py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
-          py::arg("tile_size"), py::arg("isect_offsets"), py::arg("flatten_ids"), py::arg("T_final"),
-          py::arg("last_ids"), py::arg("v_render_colors"), py::arg("v_render_alphas"), py::arg("cull") = true,
-          py::arg("mode") = 0, py::arg("n_threads") = 0);
-    m.def("isect_tiles", &isect_tiles, py::arg("means2d"), py::arg("radii"), py::arg("depths"),
-          py::arg("tile_size"), py::arg("tile_width"), py::arg("tile_height"), py::arg("n_threads") = 0);
-    m.def("project_fwd", &stealth_ns::project_fwd, py::arg("means"), py::arg("quats"), py::arg("scales"),
-          py::arg("viewmats"), py::arg("Ks"), py::arg("width"), py::arg("height"), py::arg("eps2d"),
-          py::arg("near_plane"), py::arg("far_plane"), py::arg("radius_clip"));
-    m.def("project_bwd", &stealth_ns::project_bwd, py::arg("means"), py::arg("quats"), py::arg("scales"),
-          py::arg("viewmats"), py::arg("Ks"), py::arg("width"), py::arg("height"), py::arg("eps2d"),
-          py::arg("radii"), py::arg("v_means2d"), py::arg("v_depths"), py::arg("v_conics"));
-    m.def("sh_fwd", &stealth_ns::sh_fwd, py::arg("means"), py::arg("viewmats"), py::arg("sh_dc"),
-          py::arg("sh_rest"), py::arg("degree"), py::arg("radii"));
-    m.def("sh_bwd", &stealth_ns::sh_bwd, py::arg("means"), py::arg("viewmats"), py::arg("sh_dc"),
-          py::arg("sh_rest"), py::arg("degree"), py::arg("radii"), py::arg("v_colors"));
-    m.def("ssim_fwd", &stealth_ns::ssim_fwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("C1"),
-          py::arg("C2"), py::arg("need_grad"));
-    m.def("ssim_bwd", &stealth_ns::ssim_bwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("dmaps"),
-          py::arg("v_planes"));
-    m.def("densify_stats", &stealth_ns::densify_stats, py::arg("grad2d"), py::arg("count"), py::arg("max_radii"),
-          py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
-}
+}  // namespace stealth_ns

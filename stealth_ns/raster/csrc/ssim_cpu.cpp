@@ -13,13 +13,15 @@
 #include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
+#include <ATen/ops/empty.h>
+#include <ATen/ops/empty_like.h>
 
 #include <vector>
 
 namespace stealth_ns {
 namespace {
 
-void check_image(const torch::Tensor &t, const char *name) {
+void check_image(const at::Tensor &t, const char *name) {
     check_cpu_f32(t, name);
     TORCH_CHECK(t.dim() == 4, name, " must be [B, C, H, W]");
 }
@@ -84,7 +86,7 @@ struct Dims {
     int64_t planes, H, W, K, Ho, Wo;
 };
 
-Dims check(const torch::Tensor &X, const torch::Tensor &Y, const torch::Tensor &win) {
+Dims check(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win) {
     check_image(X, "X");
     check_image(Y, "Y");
     TORCH_CHECK(X.sizes() == Y.sizes(), "X and Y must have the same shape");
@@ -97,13 +99,13 @@ Dims check(const torch::Tensor &X, const torch::Tensor &Y, const torch::Tensor &
 
 }  // namespace
 
-std::vector<torch::Tensor> ssim_fwd(const torch::Tensor &X, const torch::Tensor &Y, const torch::Tensor &win,
+std::vector<at::Tensor> ssim_fwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
                                     double C1, double C2, bool need_grad) {
     const Dims d = check(X, Y, win);
     const int64_t HW = d.H * d.W, HWo = d.Ho * d.Wo;
-    auto planes = torch::empty({X.size(0), X.size(1)}, X.options());
+    auto planes = at::empty({X.size(0), X.size(1)}, X.options());
     // per plane: dS/dmu_y, dS/dE[YY], dS/dE[XY], already divided by the number of window positions
-    auto dmaps = need_grad ? torch::empty({d.planes, 3, d.Ho, d.Wo}, X.options()) : torch::empty({0}, X.options());
+    auto dmaps = need_grad ? at::empty({d.planes, 3, d.Ho, d.Wo}, X.options()) : at::empty({0}, X.options());
     const float *xp = X.data_ptr<float>(), *yp = Y.data_ptr<float>(), *w = win.data_ptr<float>();
     float *pp = planes.data_ptr<float>();
     float *dp = need_grad ? dmaps.data_ptr<float>() : nullptr;
@@ -142,15 +144,15 @@ std::vector<torch::Tensor> ssim_fwd(const torch::Tensor &X, const torch::Tensor 
     return {planes, dmaps};
 }
 
-torch::Tensor ssim_bwd(const torch::Tensor &X, const torch::Tensor &Y, const torch::Tensor &win,
-                       const torch::Tensor &dmaps, const torch::Tensor &v_planes) {
+at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
+                       const at::Tensor &dmaps, const at::Tensor &v_planes) {
     const Dims d = check(X, Y, win);
     const int64_t HW = d.H * d.W, HWo = d.Ho * d.Wo;
     check_cpu_f32(dmaps, "dmaps");
     check_cpu_f32(v_planes, "v_planes");
     TORCH_CHECK(dmaps.numel() == d.planes * 3 * HWo, "dmaps must be [planes, 3, H', W']");
     TORCH_CHECK(v_planes.numel() == d.planes, "v_planes must be [B, C]");
-    auto v_Y = torch::empty_like(Y);
+    auto v_Y = at::empty_like(Y);
     const float *xp = X.data_ptr<float>(), *yp = Y.data_ptr<float>(), *w = win.data_ptr<float>();
     const float *dp = dmaps.data_ptr<float>(), *vp = v_planes.data_ptr<float>();
     float *out = v_Y.data_ptr<float>();

@@ -1,18 +1,18 @@
 // SSIM of two image batches and its gradient with respect to the second, on the CPU (see ssim_cpu.cpp).
 #pragma once
 
-#include <torch/extension.h>
+#include <ATen/core/Tensor.h>
 
 #include <vector>
 
 namespace stealth_ns {
 
 // (per-plane SSIM [B, C], and when need_grad the per-plane derivative maps [B*C, 3, H', W'] for ssim_bwd)
-std::vector<torch::Tensor> ssim_fwd(const torch::Tensor &X, const torch::Tensor &Y, const torch::Tensor &win,
+std::vector<at::Tensor> ssim_fwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
                                     double C1, double C2, bool need_grad);
 
 // dL/dY [B, C, H, W] from the upstream gradient of the per-plane SSIM v_planes [B, C]
-torch::Tensor ssim_bwd(const torch::Tensor &X, const torch::Tensor &Y, const torch::Tensor &win,
-                       const torch::Tensor &dmaps, const torch::Tensor &v_planes);
+at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
+                       const at::Tensor &dmaps, const at::Tensor &v_planes);
 
 }  // namespace stealth_ns
