@@ -28,7 +28,7 @@ echo "bootstrap: installing stealth-ns and its dependencies into $VENV (first ti
 "$VENV/bin/python" -m pip install -q -e '.[dev]'
 "$VENV/bin/python" -c "import torch, torchvision, nerfstudio, gsplat, open3d, ray" \
     || { echo "bootstrap: the environment in $VENV is broken (see the import error above)" >&2; exit 1; }
-# Build the compiled CPU kernels now (about 25 s) rather than inside the first training. Not fatal:
+# Build the compiled CPU kernels now (about 20 s) rather than inside the first training. Not fatal:
 # without a compiler stealth-ns says why and runs the torch reference instead.
 "$VENV/bin/python" -c "from stealth_ns.raster.cpp_backend import compile_error, load_extension
 print('bootstrap: compiled CPU kernels built' if load_extension() else

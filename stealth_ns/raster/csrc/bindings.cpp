@@ -12,12 +12,14 @@
 namespace py = pybind11;
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.doc() = "stealth-ns CPU rasterizer (gsplat 1.4.0 rasterize_to_pixels equivalent)";
-    m.def("rasterize_fwd", &stealth_ns::rasterize_fwd, py::arg("means2d"), py::arg("conics"), py::arg("colors"),
+    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, densification statistics";
+    m.def("rasterize_fwd", &stealth_ns::rasterize_fwd,
+          py::arg("means2d"), py::arg("conics"), py::arg("colors"),
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
           py::arg("tile_size"), py::arg("isect_offsets"), py::arg("flatten_ids"), py::arg("cull") = true,
           py::arg("n_threads") = 0);
-    m.def("rasterize_bwd", &stealth_ns::rasterize_bwd, py::arg("means2d"), py::arg("conics"), py::arg("colors"),
+    m.def("rasterize_bwd", &stealth_ns::rasterize_bwd,
+          py::arg("means2d"), py::arg("conics"), py::arg("colors"),
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
           py::arg("tile_size"), py::arg("isect_offsets"), py::arg("flatten_ids"), py::arg("T_final"),
           py::arg("last_ids"), py::arg("v_render_colors"), py::arg("v_render_alphas"), py::arg("cull") = true,
@@ -38,6 +40,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("C2"), py::arg("need_grad"));
     m.def("ssim_bwd", &stealth_ns::ssim_bwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("dmaps"),
           py::arg("v_planes"));
-    m.def("densify_stats", &stealth_ns::densify_stats, py::arg("grad2d"), py::arg("count"), py::arg("max_radii"),
+    m.def("densify_stats", &stealth_ns::densify_stats,
+          py::arg("grad2d"), py::arg("count"), py::arg("max_radii"),
           py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
 }
