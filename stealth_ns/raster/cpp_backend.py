@@ -2,7 +2,7 @@
 
 The C++ sources (``csrc/rasterize_cpu.cpp``, ``csrc/project_cpu.cpp``, ``csrc/ssim_cpu.cpp``,
 ``csrc/densify_cpu.cpp`` and their Python bindings ``csrc/bindings.cpp``) are compiled on first use
-with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP; about 25 s on 2 cores) into a cache
+with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP; about 20 s on 2 cores) into a cache
 directory:
 
 * ``$STEALTH_NS_CACHE/torch_ext/<key>`` when ``STEALTH_NS_CACHE`` is set,

@@ -375,9 +375,9 @@ inline void sh_sum(const ShInputs &in, const vf *Y, const vf coef[48], vf v[3]) 
 }  // namespace
 
 std::vector<at::Tensor> project_fwd(const at::Tensor &means, const at::Tensor &quats,
-                                       const at::Tensor &scales, const at::Tensor &viewmats,
-                                       const at::Tensor &Ks, int64_t width, int64_t height, double eps2d,
-                                       double near_plane, double far_plane, double radius_clip) {
+                                    const at::Tensor &scales, const at::Tensor &viewmats,
+                                    const at::Tensor &Ks, int64_t width, int64_t height, double eps2d,
+                                    double near_plane, double far_plane, double radius_clip) {
     check_cpu_f32(means, "means");
     check_cpu_f32(quats, "quats");
     check_cpu_f32(scales, "scales");
@@ -423,10 +423,10 @@ std::vector<at::Tensor> project_fwd(const at::Tensor &means, const at::Tensor &q
 }
 
 std::vector<at::Tensor> project_bwd(const at::Tensor &means, const at::Tensor &quats,
-                                       const at::Tensor &scales, const at::Tensor &viewmats,
-                                       const at::Tensor &Ks, int64_t width, int64_t height, double eps2d,
-                                       const at::Tensor &radii, const at::Tensor &v_means2d,
-                                       const at::Tensor &v_depths, const at::Tensor &v_conics) {
+                                    const at::Tensor &scales, const at::Tensor &viewmats,
+                                    const at::Tensor &Ks, int64_t width, int64_t height, double eps2d,
+                                    const at::Tensor &radii, const at::Tensor &v_means2d,
+                                    const at::Tensor &v_depths, const at::Tensor &v_conics) {
     check_cpu_f32(v_means2d, "v_means2d");
     check_cpu_f32(v_depths, "v_depths");
     check_cpu_f32(v_conics, "v_conics");
@@ -503,7 +503,7 @@ std::vector<at::Tensor> project_bwd(const at::Tensor &means, const at::Tensor &q
 }
 
 at::Tensor sh_fwd(const at::Tensor &means, const at::Tensor &viewmats, const at::Tensor &dc,
-                     const at::Tensor &rest, int64_t degree, const at::Tensor &radii) {
+                  const at::Tensor &rest, int64_t degree, const at::Tensor &radii) {
     const ShInputs in = check_sh(means, viewmats, dc, rest, degree, radii);
     const std::vector<Camera> cams = cameras(viewmats, at::Tensor(), 0, 0);
     auto colors = at::empty({in.C, in.N, 3}, means.options());
@@ -532,8 +532,8 @@ at::Tensor sh_fwd(const at::Tensor &means, const at::Tensor &viewmats, const at:
 }
 
 std::vector<at::Tensor> sh_bwd(const at::Tensor &means, const at::Tensor &viewmats,
-                                  const at::Tensor &dc, const at::Tensor &rest, int64_t degree,
-                                  const at::Tensor &radii, const at::Tensor &v_colors) {
+                               const at::Tensor &dc, const at::Tensor &rest, int64_t degree,
+                               const at::Tensor &radii, const at::Tensor &v_colors) {
     const ShInputs in = check_sh(means, viewmats, dc, rest, degree, radii);
     check_cpu_f32(v_colors, "v_colors");
     TORCH_CHECK(v_colors.numel() == in.C * in.N * 3, "v_colors must be [C, N, 3]");

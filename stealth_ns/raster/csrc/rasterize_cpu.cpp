@@ -466,7 +466,7 @@ void fwd_impl(
                 }
                 const GPrep &gp = prep[gi];
                 if (gp.kind == kSkip) continue;
-                const float mx = gp.mx, my = gp.my, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;
+                const float mx = gp.mx, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;  // dy: from the block
                 const float *__restrict__ cptr = colors + gi * D;
                 const vi idxv = viset((int32_t)idx);
                 const int nb = list_blocks(gp, x_base, tx1, y_base, ty1, stride, span_lo, span_hi, blocks);
@@ -618,7 +618,7 @@ void bwd_impl(
                 }
                 const GPrep &gp = prep[gi];
                 if (gp.kind == kSkip) continue;
-                const float mx = gp.mx, my = gp.my, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;
+                const float mx = gp.mx, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;  // dy: from the block
                 const float *__restrict__ cptr = colors + gi * D;
                 const vi idxv = viset((int32_t)idx);
                 const int nb = list_blocks(gp, x_base, tx1, y_base, ty1, stride, span_lo, span_hi, blocks);

@@ -100,7 +100,7 @@ Dims check(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win) {
 }  // namespace
 
 std::vector<at::Tensor> ssim_fwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
-                                    double C1, double C2, bool need_grad) {
+                                 double C1, double C2, bool need_grad) {
     const Dims d = check(X, Y, win);
     const int64_t HW = d.H * d.W, HWo = d.Ho * d.Wo;
     auto planes = at::empty({X.size(0), X.size(1)}, X.options());
@@ -145,7 +145,7 @@ std::vector<at::Tensor> ssim_fwd(const at::Tensor &X, const at::Tensor &Y, const
 }
 
 at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
-                       const at::Tensor &dmaps, const at::Tensor &v_planes) {
+                    const at::Tensor &dmaps, const at::Tensor &v_planes) {
     const Dims d = check(X, Y, win);
     const int64_t HW = d.H * d.W, HWo = d.Ho * d.Wo;
     check_cpu_f32(dmaps, "dmaps");

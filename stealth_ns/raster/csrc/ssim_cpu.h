@@ -9,10 +9,10 @@ namespace stealth_ns {
 
 // (per-plane SSIM [B, C], and when need_grad the per-plane derivative maps [B*C, 3, H', W'] for ssim_bwd)
 std::vector<at::Tensor> ssim_fwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
-                                    double C1, double C2, bool need_grad);
+                                 double C1, double C2, bool need_grad);
 
 // dL/dY [B, C, H, W] from the upstream gradient of the per-plane SSIM v_planes [B, C]
 at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
-                       const at::Tensor &dmaps, const at::Tensor &v_planes);
+                    const at::Tensor &dmaps, const at::Tensor &v_planes);
 
 }  // namespace stealth_ns
