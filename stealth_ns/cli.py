@@ -15,8 +15,8 @@ import tyro
 
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.defences.config import DefendConfig
+from stealth_ns.difficulty.rank import RankViews
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation.difficulty import RankViews
 from stealth_ns.poisoning.config import IPAConfig
 
 
@@ -113,7 +113,7 @@ class BenchTrain:
     """Also write the figures to this JSON file (keys median_step_ms, phases_ms, ...)."""
 
     def main(self) -> None:
-        from stealth_ns.evaluation.train_bench import run_train_benchmark
+        from stealth_ns.bench.train_step import run_train_benchmark
 
         if self.json is not None and not self.json.parent.exists():
             raise StealthNSError(f"cannot write {self.json}: folder {self.json.parent} does not exist")
@@ -145,7 +145,7 @@ class Report:
     """Output folder of `stealth-ns defend --run POISONED`: adds a "Defences" section to report.html."""
 
     def main(self) -> None:
-        from stealth_ns.evaluation.report import summary_lines, write_report
+        from stealth_ns.report.write import summary_lines, write_report
 
         report = write_report(self.poisoned, self.clean, self.output, self.defend)
         print("\n".join(summary_lines(report, self.output)))
@@ -212,8 +212,8 @@ class BenchAttack:
     """With --executor ray: retries of a training that failed (ns-train exited non-zero)."""
 
     def main(self) -> None:
-        from stealth_ns.evaluation.executors import ExecutorOptions
-        from stealth_ns.evaluation.experiments import run_bench
+        from stealth_ns.bench.attack import run_bench
+        from stealth_ns.bench.executors import ExecutorOptions
         from stealth_ns.method_configs.attack_experiments import DEFAULT_SCENES
 
         run_bench(
@@ -307,7 +307,7 @@ class Defend:
     options: Annotated[DefendConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DefendConfig)
 
     def main(self) -> None:
-        from stealth_ns.evaluation.defend import run_defend
+        from stealth_ns.defend.command import run_defend
 
         run_defend(self.run, self.output, self.options, self.clean)
         print(f"\nwrote {self.output / 'defend.json'}, {self.output / 'defend.md'} and the figures")

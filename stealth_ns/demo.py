@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation.runs import TrainRecord, TrainSpec, train, train_progress
+from stealth_ns.runs.training import TrainRecord, TrainSpec, train, train_progress
 
 
 @dataclass
@@ -43,7 +43,7 @@ class DemoResult:
     """Wall-clock seconds of the whole invocation."""
 
     def __str__(self) -> str:
-        from stealth_ns.evaluation.report import summary_lines
+        from stealth_ns.report.write import summary_lines
 
         s = self.seconds
         lines = [
@@ -74,7 +74,7 @@ def run_demo(output: Path, iterations: int | None = None, seed: int = 0) -> Demo
     Runs are ``output/runs/demo/stealth-splat-lite/{clean,poisoned}`` (ns-train logs beside them
     as ``output/train-NAME.log``); the report goes to ``output/report``.
     """
-    from stealth_ns.evaluation.report import write_report
+    from stealth_ns.report.write import write_report
     from stealth_ns.scenes import make_scene
 
     if iterations is not None and (isinstance(iterations, bool) or iterations < 1):

@@ -4,7 +4,8 @@ A model's per-Gaussian tensors (``gauss_params``: every entry ``[N, ...]``), the
 (``exp_avg``, ``exp_avg_sq``: ``[N, ...]``) and gsplat's densification statistics (``[N]`` tensors in
 the strategy state) must always have the same rows, or the next step indexes past one of them.
 gsplat keeps this in ``gsplat/strategy/ops.py`` for its own duplicate / split / prune; appending
-rows from outside the strategy (the poison injection) is done here, with the same contract.
+rows from outside the strategy (the poison injection) is done here, with the same contract, and so
+is re-pointing the optimizers at rows that were replaced whole (a loaded checkpoint).
 """
 
 from __future__ import annotations
@@ -90,3 +91,34 @@ def select_rows(tensors: dict, keep: Tensor) -> dict:
         k: v[keep] if isinstance(v, Tensor) and v.dim() > 0 and v.shape[0] == n else v
         for k, v in tensors.items()
     }
+
+
+@torch.no_grad()
+def rebind_optimizers(params: torch.nn.ParameterDict, optimizers: dict[str, torch.optim.Optimizer]) -> None:
+    """Point the optimizer of every ``params`` entry at the entry's current Parameter, moving its state
+    over (after the entries were replaced, e.g. by loading a checkpoint). Optimizers of other names
+    are left alone.
+
+    Raises:
+        ValueError: a per-row state tensor does not have its new Parameter's shape (the state and the
+            rows do not belong together).
+    """
+    for name, optimizer in optimizers.items():
+        if name not in params:
+            continue
+        param = params[name]
+        for group in optimizer.param_groups:
+            (old,) = group["params"]
+            if old is param:
+                continue
+            state = optimizer.state.pop(old, None)
+            group["params"] = [param]
+            if state is not None:
+                for key, value in state.items():
+                    if isinstance(value, Tensor) and value.dim() > 0 and value.shape != param.shape:
+                        raise ValueError(
+                            f"optimizer state {name}.{key} has shape {tuple(value.shape)} but the "
+                            f"model's {name} has {tuple(param.shape)}: checkpoint and optimizer "
+                            "state do not belong together"
+                        )
+                optimizer.state[param] = state

@@ -54,11 +54,13 @@ from torch import Tensor
 
 from stealth_ns.densification import DenseStatisticsStrategy
 from stealth_ns.errors import StealthNSError
-from stealth_ns.gaussian_rows import append_rows
+from stealth_ns.gaussian_init import initial_colours, object_box
+from stealth_ns.gaussian_rows import append_rows, rebind_optimizers
 from stealth_ns.malloc_tuning import keep_freed_memory
 from stealth_ns.metrics import LazyLPIPS
 from stealth_ns.raster import rasterization, resolve_backend
-from stealth_ns.raster.projection import SHCoefficients
+from stealth_ns.raster.projection import SHCoefficients, viewmat_from_c2w
+from stealth_ns.render_view import RenderFilter, render_camera
 from stealth_ns.ssim import SSIM
 
 
@@ -110,23 +112,9 @@ NEAR_PLANE = 0.01
 """Name of the per-Gaussian tag (1.0 = poison, 0.0 = scene) kept in ``gauss_params``: gsplat's
 strategy duplicates, splits and prunes it with the other rows, and it is saved in checkpoints."""
 
-RenderFilter = Literal["all", "hide_poison", "only_poison"]
-
 
 def _tag_parameter(values: Tensor) -> torch.nn.Parameter:
     return torch.nn.Parameter(values.float(), requires_grad=False)
-
-
-def viewmat_from_c2w(camera_to_worlds: Tensor) -> Tensor:
-    """[C, 3, 4] OpenGL camera-to-world -> [C, 4, 4] OpenCV world-to-camera (gsplat's convention)."""
-    rot = camera_to_worlds[:, :3, :3] * torch.tensor([1.0, -1.0, -1.0], device=camera_to_worlds.device)
-    trans = camera_to_worlds[:, :3, 3:4]
-    rot_inv = rot.transpose(1, 2)
-    viewmat = torch.zeros(rot.shape[0], 4, 4, device=rot.device, dtype=rot.dtype)
-    viewmat[:, 3, 3] = 1.0
-    viewmat[:, :3, :3] = rot_inv
-    viewmat[:, :3, 3:4] = -rot_inv @ trans
-    return viewmat
 
 
 class StealthSplatModel(SplatfactoModel):
@@ -136,25 +124,27 @@ class StealthSplatModel(SplatfactoModel):
 
     def populate_modules(self) -> None:
         # Splatfacto's initialisation, minus the unconditional .cuda() and the eager LPIPS.
-        if self.seed_points is not None and not self.config.random_init:
+        seeded = self.seed_points is not None and not self.config.random_init
+        if seeded:
             means = torch.nn.Parameter(self.seed_points[0].float())
         else:
             means = torch.nn.Parameter(
                 (torch.rand((self.config.num_random, 3)) - 0.5) * self.config.random_scale
             )
         n = means.shape[0]
-        self._fresh_random_init = not (self.seed_points is not None and not self.config.random_init)
+        self._fresh_random_init = not seeded
         scales = torch.nn.Parameter(self._initial_log_scales(means.data))
         quats = torch.nn.Parameter(random_quat_tensor(n))
-        features_dc, features_rest = self._initial_features(n)
+        colours = self.seed_points[1] if seeded and self.seed_points[1].shape[0] > 0 else None
+        features_dc, features_rest = initial_colours(colours, n, self.config.sh_degree)
         opacities = torch.nn.Parameter(torch.logit(0.1 * torch.ones(n, 1)))
         self.gauss_params = torch.nn.ParameterDict(
             {
                 "means": means,
                 "scales": scales,
                 "quats": quats,
-                "features_dc": features_dc,
-                "features_rest": features_rest,
+                "features_dc": torch.nn.Parameter(features_dc),
+                "features_rest": torch.nn.Parameter(features_rest),
                 "opacities": opacities,
                 POISON_TAG: _tag_parameter(torch.zeros(n)),
             }
@@ -215,24 +205,6 @@ class StealthSplatModel(SplatfactoModel):
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
         self._backend_for_device: dict[str, str] = {}
 
-    def _initial_features(self, n: int) -> tuple[torch.nn.Parameter, torch.nn.Parameter]:
-        """Splatfacto's initial colours: the seed points' RGB as SH degree 0 (a logit without SH), else
-        random; ``[n, 3]`` and ``[n, bases - 1, 3]``."""
-        dim_sh = num_sh_bases(self.config.sh_degree)
-        has_colors = (
-            self.seed_points is not None and not self.config.random_init and self.seed_points[1].shape[0] > 0
-        )
-        if not has_colors:
-            return torch.nn.Parameter(torch.rand(n, 3)), torch.nn.Parameter(torch.zeros((n, dim_sh - 1, 3)))
-        rgb = self.seed_points[1].float() / 255.0
-        shs = torch.zeros((n, dim_sh, 3))
-        if self.config.sh_degree > 0:
-            shs[:, 0, :3] = RGB2SH(rgb)
-        else:
-            CONSOLE.log("use color only optimization with sigmoid activation")
-            shs[:, 0, :3] = torch.logit(rgb, eps=1e-10)
-        return torch.nn.Parameter(shs[:, 0, :]), torch.nn.Parameter(shs[:, 1:, :])
-
     def _initial_log_scales(self, means: Tensor) -> Tensor:
         """Splatfacto's initial log-scales: the mean distance to the 3 nearest neighbours, [N, 3]."""
         n = means.shape[0]
@@ -278,14 +250,10 @@ class StealthSplatModel(SplatfactoModel):
             return
         self._fresh_random_init = False
         means = self.gauss_params["means"]
-        aabb = self.scene_box.aabb.float().cpu()
-        centres = camera_centres.float().cpu()
-        if centres.shape[0] == 0 or ((centres >= aabb[0]) & (centres <= aabb[1])).all(-1).any():
+        box = object_box(self.scene_box.aabb, camera_centres, self.config.random_scale)
+        if box is None:
             return
-        half = self.config.random_scale / 2
-        lo, hi = aabb[0].clamp(min=-half), aabb[1].clamp(max=half)
-        if (hi <= lo).any():
-            return
+        lo, hi = box
         new = lo + torch.rand(means.shape[0], 3) * (hi - lo)
         means.data.copy_(new.to(means.device))
         self.gauss_params["scales"].data.copy_(self._initial_log_scales(new).to(means.device))
@@ -407,7 +375,6 @@ class StealthSplatModel(SplatfactoModel):
             self._tag_optimizer = torch.optim.Adam([tag], lr=0.0)
         self.optimizers = {**self.optimizers, POISON_TAG: self._tag_optimizer}
 
-    @torch.no_grad()
     def rebind_optimizers(self, optimizers: dict[str, torch.optim.Optimizer]) -> None:
         """Point every Gaussian optimizer at the model's current rows, keeping its state.
 
@@ -416,25 +383,10 @@ class StealthSplatModel(SplatfactoModel):
         the seed-point-sized tensors it no longer renders and gsplat's densification indexes them
         with the checkpoint's rows (an IndexError at the first refinement).
         """
-        for name, optimizer in optimizers.items():
-            if name not in self.gauss_params:
-                continue
-            param = self.gauss_params[name]
-            for group in optimizer.param_groups:
-                (old,) = group["params"]
-                if old is param:
-                    continue
-                state = optimizer.state.pop(old, None)
-                group["params"] = [param]
-                if state is not None:
-                    for key, value in state.items():
-                        if isinstance(value, Tensor) and value.dim() > 0 and value.shape != param.shape:
-                            raise StealthNSError(
-                                f"optimizer state {name}.{key} has shape {tuple(value.shape)} but the "
-                                f"model's {name} has {tuple(param.shape)}: checkpoint and optimizer "
-                                "state do not belong together"
-                            )
-                    optimizer.state[param] = state
+        try:
+            rebind_optimizers(self.gauss_params, optimizers)
+        except ValueError as err:
+            raise StealthNSError(str(err)) from None
 
     def get_extra_state(self) -> dict[str, Any]:
         """Stored in checkpoints: gsplat's densification statistics (per-Gaussian gradient sums
@@ -635,26 +587,3 @@ def _in_viewer_render_thread() -> bool:
     from nerfstudio.viewer.render_state_machine import RenderStateMachine
 
     return isinstance(threading.current_thread(), RenderStateMachine)
-
-
-@torch.no_grad()
-def render_camera(
-    model: torch.nn.Module, camera: Cameras, render_filter: RenderFilter = "all"
-) -> dict[str, Any]:
-    """Render ``camera`` (one view) with ``model`` in eval mode, on the model's device.
-
-    Any nerfstudio model works (a clean run may be stock splatfacto); a ``render_filter`` other than
-    "all" needs a :class:`StealthSplatModel`. The model's train/eval mode and filter are restored after.
-
-    Returns:
-        The model's outputs: ``rgb`` ``[H, W, 3]`` in [0, 1], ``depth`` ``[H, W, 1]`` (z, scene units),
-        ``accumulation`` ``[H, W, 1]``, ...
-    """
-    was_training = model.training
-    model.eval()
-    try:
-        filtered = model.filtered(render_filter) if render_filter != "all" else contextlib.nullcontext()
-        with filtered:
-            return model.get_outputs(camera.to(model.device))
-    finally:
-        model.train(was_training)

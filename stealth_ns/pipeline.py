@@ -47,7 +47,8 @@ from stealth_ns.errors import StealthNSError, fail
 from stealth_ns.fingerprint import record_fingerprint
 from stealth_ns.image_io import to_float32
 from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
-from stealth_ns.model import NEAR_PLANE, StealthSplatModel, viewmat_from_c2w
+from stealth_ns.model import NEAR_PLANE, StealthSplatModel
+from stealth_ns.raster.projection import viewmat_from_c2w
 from stealth_ns.viewer import StealthAttackPanel
 
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -31,8 +30,9 @@ import numpy as np
 
 from stealth_ns.dataset_check import read_json_object
 from stealth_ns.errors import StealthNSError
-from stealth_ns.image_io import image_info, image_size, read_image, save_png, split_alpha
+from stealth_ns.image_io import image_size
 from stealth_ns.scenes.writer import write_ply
+from stealth_ns.triangulation import Camera, Frame, triangulate
 
 __all__ = ["SeedPointsSummary", "make_seed_points"]
 
@@ -40,12 +40,7 @@ SEEDED_JSON = "transforms_seeded.json"
 """Name of the copy of the transforms file written beside the original (default mode)."""
 PLY_NAME = "sparse_pc.ply"
 """Preferred name of the written PLY."""
-PYCOLMAP_HINT = "pip install 'pycolmap>=4.0,<5'"
 BLENDER_SPLITS = ("train", "val", "test")
-MIN_INLIERS = 15
-"""Verified matches an image pair needs to take part in triangulation (COLMAP's default)."""
-LINKABLE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-"""Image files COLMAP reads as they are, when 8-bit grey or RGB; others are staged as RGB PNG copies."""
 
 
 @dataclass(frozen=True)
@@ -86,26 +81,6 @@ class SeedPointsSummary:
         return "\n".join(lines)
 
 
-@dataclass(frozen=True)
-class _Camera:
-    """A COLMAP camera: model name, size in pixels and COLMAP's parameter list."""
-
-    model: str
-    width: int
-    height: int
-    params: tuple[float, ...]
-
-
-@dataclass(frozen=True)
-class _Frame:
-    """One view: its ``file_path`` as written in the transforms file, the image, pose, camera."""
-
-    file_path: str
-    image: Path
-    c2w: np.ndarray = field(compare=False)
-    camera: _Camera
-
-
 @dataclass
 class _Dataset:
     """A parsed dataset: ``meta`` is a nerfstudio-data transforms dict (converted for Blender)
@@ -114,22 +89,9 @@ class _Dataset:
     root: Path
     transforms: Path | None
     meta: dict[str, Any]
-    frames: list[_Frame]
+    frames: list[Frame]
     n_frames: int
     blender: bool
-
-
-@dataclass(frozen=True)
-class _Points:
-    xyz: np.ndarray
-    rgb: np.ndarray
-    error: np.ndarray
-    track: np.ndarray
-
-
-# --------------------------------------------------------------------------------------------
-# public entry point
-# --------------------------------------------------------------------------------------------
 
 
 def make_seed_points(
@@ -168,7 +130,7 @@ def make_seed_points(
         f"seed-points: {len(ds.frames)} of {ds.n_frames} frames used for triangulation"
         + (" (the training split)" if len(ds.frames) < ds.n_frames else "")
     )
-    points, stats = _triangulate(ds.frames, seed=int(seed))
+    points, stats = triangulate(ds.frames, seed=int(seed))
 
     n_triangulated = int(points.xyz.shape[0])
     keep = (points.track >= int(min_views)) & (points.error <= float(max_error))
@@ -213,11 +175,6 @@ def make_seed_points(
     )
 
 
-# --------------------------------------------------------------------------------------------
-# reading the dataset
-# --------------------------------------------------------------------------------------------
-
-
 def _load_dataset(data: Path) -> _Dataset:
     """Parse ``data`` (folder or transforms JSON) into a :class:`_Dataset`."""
     if not data.exists():
@@ -251,7 +208,7 @@ def _camera(model: str, w: int, h: int, fx: float, fy: float, cx: float, cy: flo
     if not all(math.isfinite(v) for v in values) or w <= 0 or h <= 0 or fx <= 0 or fy <= 0:
         raise StealthNSError(f"{where}: invalid intrinsics (fl_x {fx}, fl_y {fy}, cx {cx}, cy {cy}, {w}x{h})")
     if model == "OPENCV_FISHEYE":
-        return _Camera("OPENCV_FISHEYE", w, h, (fx, fy, cx, cy, k1, k2, k3, k4))
+        return Camera("OPENCV_FISHEYE", w, h, (fx, fy, cx, cy, k1, k2, k3, k4))
     if model not in ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"):
         raise StealthNSError(
             f"{where}: camera_model {model!r} is not supported (PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, "
@@ -261,10 +218,10 @@ def _camera(model: str, w: int, h: int, fx: float, fy: float, cx: float, cy: flo
     if k4 != 0.0:
         raise StealthNSError(f"{where}: radial distortion k4 (r^8) has no COLMAP equivalent")
     if k1 == k2 == k3 == p1 == p2 == 0.0:
-        return _Camera("PINHOLE", w, h, (fx, fy, cx, cy))
+        return Camera("PINHOLE", w, h, (fx, fy, cx, cy))
     if k3 == 0.0:
-        return _Camera("OPENCV", w, h, (fx, fy, cx, cy, k1, k2, p1, p2))
-    return _Camera("FULL_OPENCV", w, h, (fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0))
+        return Camera("OPENCV", w, h, (fx, fy, cx, cy, k1, k2, p1, p2))
+    return Camera("FULL_OPENCV", w, h, (fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0))
 
 
 def _distortion(src: dict) -> list[float]:
@@ -306,7 +263,7 @@ def _image_file(root: Path, file_path: str, where: str, blender: bool) -> Path:
     return path
 
 
-def _selected(meta: dict, root: Path, frames: list[_Frame]) -> list[_Frame]:
+def _selected(meta: dict, root: Path, frames: list[Frame]) -> list[Frame]:
     """The training split (``train_filenames``) where the file declares one, else all frames."""
     if "train_filenames" not in meta:
         return frames
@@ -339,14 +296,14 @@ def _load_nerfstudio(path: Path) -> _Dataset:
         size = image_size(image, f"{where}: image")
         if size != (w, h):
             raise StealthNSError(f"{where}: image {image} is {size[0]}x{size[1]} but the file says {w}x{h}")
-        frames.append(_Frame(str(fr["file_path"]), image, c2w, cam))
+        frames.append(Frame(str(fr["file_path"]), image, c2w, cam))
     return _Dataset(root, path, meta, _selected(meta, root, frames), len(frames), blender=False)
 
 
 def _load_blender(root: Path) -> _Dataset:
     """Read a Blender folder and convert it to a nerfstudio-data transforms dict (PINHOLE,
     fl = 0.5 * w / tan(camera_angle_x / 2), principal point at the centre, Blender's split kept)."""
-    frames: list[_Frame] = []
+    frames: list[Frame] = []
     splits: dict[str, list[str]] = {}
     out_frames = []
     for split in BLENDER_SPLITS:
@@ -371,9 +328,9 @@ def _load_blender(root: Path) -> _Dataset:
             image = _image_file(root, str(fr["file_path"]), where, blender=True)
             w, h = image_size(image, f"{where}: image")
             fl = 0.5 * w / math.tan(0.5 * angle)
-            cam = _Camera("PINHOLE", w, h, (fl, fl, w / 2.0, h / 2.0))
+            cam = Camera("PINHOLE", w, h, (fl, fl, w / 2.0, h / 2.0))
             rel = Path(os.path.relpath(image, root)).as_posix()
-            frames.append(_Frame(rel, image, c2w, cam))
+            frames.append(Frame(rel, image, c2w, cam))
             splits[split].append(rel)
             out_frames.append(
                 {
@@ -402,11 +359,6 @@ def _load_blender(root: Path) -> _Dataset:
         out.update(train_filenames=splits["train"], val_filenames=val, test_filenames=test)
     train = [f for f in frames if f.file_path in set(splits["train"])]
     return _Dataset(root, None, out, train, len(frames), blender=True)
-
-
-# --------------------------------------------------------------------------------------------
-# where the files go
-# --------------------------------------------------------------------------------------------
 
 
 @dataclass
@@ -532,191 +484,3 @@ def _write_outputs(ds: _Dataset, plan: _Plan, xyz: np.ndarray, rgb: np.ndarray) 
         os.replace(tmp, plan.json)
     except OSError as err:
         raise StealthNSError(f"cannot write {plan.json.parent}: {err.strerror or err}") from None
-
-
-# --------------------------------------------------------------------------------------------
-# pycolmap
-# --------------------------------------------------------------------------------------------
-
-
-def _import_pycolmap():
-    try:
-        import pycolmap
-    except ImportError:
-        raise StealthNSError(f"seed-points needs pycolmap: {PYCOLMAP_HINT}") from None
-    if not hasattr(pycolmap, "match_image_pairs") or not hasattr(pycolmap.Reconstruction, "add_rig"):
-        raise StealthNSError(f"pycolmap {pycolmap.__version__} is too old: {PYCOLMAP_HINT}")
-    return pycolmap
-
-
-def _stage_images(frames: list[_Frame], folder: Path) -> list[str]:
-    """Put the images in ``folder`` as ``00000.png``, ...: links to 8-bit grey / RGB PNG, JPEG, BMP
-    and TIFF files, RGB PNG copies (transparency composited on white) of anything else."""
-    folder.mkdir()
-    names = []
-    for k, fr in enumerate(frames):
-        info = image_info(fr.image)
-        suffix = fr.image.suffix.lower()
-        if suffix in LINKABLE_SUFFIXES and info.dtype == np.uint8 and info.channels in (1, 3):
-            name = f"{k:05d}{suffix}"
-            try:
-                os.symlink(fr.image.resolve(), folder / name)
-            except OSError:
-                shutil.copyfile(fr.image, folder / name)
-        else:
-            name = f"{k:05d}.png"
-            rgb, alpha = split_alpha(read_image(fr.image))
-            if alpha is not None:
-                rgb = rgb * alpha[..., None] + (1.0 - alpha[..., None])
-            save_png(folder / name, rgb)
-        names.append(name)
-    return names
-
-
-def _chunks(items: list, n_chunks: int) -> list[list]:
-    size = max(1, math.ceil(len(items) / max(1, n_chunks)))
-    return [items[i : i + size] for i in range(0, len(items), size)]
-
-
-def _triangulate(frames: list[_Frame], seed: int) -> tuple[_Points, dict[str, int]]:
-    """SIFT + exhaustive matching + triangulation with fixed poses, single-threaded (deterministic)."""
-    from tqdm import tqdm
-
-    if len(frames) < 2:
-        raise StealthNSError(f"need at least 2 images to triangulate (got {len(frames)})")
-    pycolmap = _import_pycolmap()
-    old_level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 2  # errors only: no glog chatter
-    try:
-        with tempfile.TemporaryDirectory(prefix="stealth-ns-seed-") as tmp:
-            return _run_colmap(pycolmap, tqdm, frames, Path(tmp), seed)
-    finally:
-        pycolmap.logging.minloglevel = old_level
-
-
-def _run_colmap(
-    pycolmap, tqdm, frames: list[_Frame], work: Path, seed: int
-) -> tuple[_Points, dict[str, int]]:
-    """Stage the images in the scratch folder ``work``, then SIFT features, matching of every pair
-    and triangulation with the known poses; returns the points and the match statistics."""
-    t = time.perf_counter()
-    images = work / "images"
-    names = _stage_images(frames, images)
-    by_name = dict(zip(names, frames, strict=True))
-    db_path = work / "database.db"
-    pycolmap.set_random_seed(seed)
-    db_images, n_kp = _extract_features(pycolmap, tqdm, db_path, images, by_name)
-    print(f"features: {n_kp} SIFT features in {len(names)} images ({time.perf_counter() - t:.1f} s)")
-    cameras, stats = _match_all_pairs(pycolmap, tqdm, db_path, work, db_images, seed)
-    points = _triangulate_known_poses(pycolmap, db_path, work, db_images, cameras, by_name, seed)
-    return points, {"keypoints": n_kp, **stats}
-
-
-def _extract_features(pycolmap, tqdm, db_path: Path, images: Path, by_name: dict[str, _Frame]):
-    """SIFT features of the staged images (file name -> frame), one camera per image while
-    extracting, then each image's known intrinsics; returns the database's images (by id) and the
-    number of keypoints."""
-    names = list(by_name)
-    ext = pycolmap.FeatureExtractionOptions()
-    ext.num_threads = 1
-    with tqdm(total=len(names), desc="features", unit="img", leave=False) as bar:
-        for chunk in _chunks(names, 20):
-            pycolmap.extract_features(
-                db_path,
-                images,
-                image_names=chunk,
-                camera_mode=pycolmap.CameraMode.PER_IMAGE,
-                extraction_options=ext,
-                device=pycolmap.Device.cpu,
-            )
-            bar.update(len(chunk))
-    with pycolmap.Database.open(db_path) as db:
-        db_images = sorted(db.read_all_images(), key=lambda im: im.image_id)
-        for im in db_images:
-            c = by_name[im.name].camera
-            db.update_camera(
-                pycolmap.Camera(
-                    camera_id=im.camera_id,
-                    model=c.model,
-                    width=c.width,
-                    height=c.height,
-                    params=list(c.params),
-                    has_prior_focal_length=True,
-                )
-            )
-        n_kp = int(db.num_keypoints())
-    return db_images, n_kp
-
-
-def _match_all_pairs(pycolmap, tqdm, db_path: Path, work: Path, db_images: list, seed: int):
-    """Match every image pair (in chunks, for the progress bar) with two-view verification, RANSAC
-    seeded; returns the database's cameras (by id) and ``{"pairs", "inliers"}`` of the pairs with at
-    least :data:`MIN_INLIERS` verified matches."""
-    t = time.perf_counter()
-    match = pycolmap.FeatureMatchingOptions()
-    match.num_threads = 1
-    verify = pycolmap.TwoViewGeometryOptions()
-    verify.ransac.random_seed = seed
-    pairs = [(a.name, b.name) for i, a in enumerate(db_images) for b in db_images[i + 1 :]]
-    pair_file = work / "pairs.txt"
-    with tqdm(total=len(pairs), desc="matching", unit="pair", leave=False) as bar:
-        for chunk in _chunks(pairs, 20):
-            pair_file.write_text("".join(f"{a} {b}\n" for a, b in chunk), encoding="utf-8")
-            pairing = pycolmap.ImportedPairingOptions()
-            pairing.match_list_path = pair_file
-            pycolmap.match_image_pairs(
-                db_path,
-                matching_options=match,
-                pairing_options=pairing,
-                verification_options=verify,
-                device=pycolmap.Device.cpu,
-            )
-            bar.update(len(chunk))
-    with pycolmap.Database.open(db_path) as db:
-        geoms = db.read_two_view_geometries()[1]
-        cameras = sorted(db.read_all_cameras(), key=lambda c: c.camera_id)
-    good = [len(g.inlier_matches) for g in geoms if len(g.inlier_matches) >= MIN_INLIERS]
-    stats = {"pairs": len(good), "inliers": int(sum(good))}
-    print(
-        f"matching: {len(pairs)} pairs, {stats['pairs']} with >= {MIN_INLIERS} verified matches, "
-        f"{stats['inliers']} matches ({time.perf_counter() - t:.1f} s)"
-    )
-    return cameras, stats
-
-
-def _triangulate_known_poses(
-    pycolmap, db_path: Path, work: Path, db_images: list, cameras: list, by_name: dict[str, _Frame], seed: int
-) -> _Points:
-    """Triangulate the verified matches with every image at its known pose (OpenGL camera-to-world
-    turned into OpenCV world-to-camera), bundle-adjusting the points only."""
-    t = time.perf_counter()
-    rec = pycolmap.Reconstruction()
-    for cam in cameras:
-        rec.add_camera_with_trivial_rig(cam)
-    flip = np.diag([1.0, -1.0, -1.0, 1.0])
-    for im in db_images:
-        w2c = np.linalg.inv(by_name[im.name].c2w @ flip)
-        image = pycolmap.Image(name=im.name, camera_id=im.camera_id, image_id=im.image_id)
-        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(w2c[:3, :4]))
-    opts = pycolmap.IncrementalPipelineOptions()
-    opts.num_threads = 1
-    opts.random_seed = seed
-    opts.min_num_matches = MIN_INLIERS
-    opts.triangulation.ignore_two_view_tracks = False
-    (work / "sparse").mkdir()
-    pycolmap.set_random_seed(seed)
-    out = pycolmap.triangulate_points(rec, db_path, work / "images", work / "sparse", options=opts)
-    ids = sorted(out.points3D)
-    pts = [out.points3D[i] for i in ids]
-    points = _Points(
-        xyz=np.array([p.xyz for p in pts], dtype=np.float64).reshape(-1, 3),
-        rgb=np.array([p.color for p in pts], dtype=np.uint8).reshape(-1, 3),
-        error=np.array([p.error for p in pts], dtype=np.float64),
-        track=np.array([p.track.length() for p in pts], dtype=np.int64),
-    )
-    mean = float(points.error.mean()) if len(pts) else float("nan")
-    print(
-        f"triangulation: {len(pts)} points, mean reprojection error {mean:.2f} px "
-        f"({time.perf_counter() - t:.1f} s)"
-    )
-    return points

@@ -12,7 +12,8 @@ from stealth_ns.attack.record import AttackRecord, Injection, PoisonView, Record
 from stealth_ns.errors import StealthNSError, StealthNSExit, fail
 from stealth_ns.gaussian_rows import append_rows
 from stealth_ns.metrics import v_illusory
-from stealth_ns.model import POISON_TAG, render_camera
+from stealth_ns.model import POISON_TAG
+from stealth_ns.render_view import render_camera
 
 
 def _view(index: int, h: int = 6, w: int = 8, seed: int = 0) -> PoisonView:

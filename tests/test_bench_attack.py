@@ -1,9 +1,9 @@
 """`stealth-ns bench attack`: the plan, reuse of finished runs, resuming, the tables, bad input.
 
-The fast tests replace ns-train (``runs.run_command``), the run comparison
-(``report.compare_runs``) and the making of a poisoned copy (``PoisonJob.make``, which would run
-``stealth-ns poison-dataset`` / ``ipa-poison``) with fakes that write what the real ones would; the
-one slow test trains a real tiny run through :mod:`stealth_ns.evaluation.runs`.
+The fast tests replace ns-train (``stealth_ns.runs.training.run_command``), the run comparison
+(``stealth_ns.report.numbers.compare_runs``) and the making of a poisoned copy (``PoisonJob.make``,
+which would run ``stealth-ns poison-dataset`` / ``ipa-poison``) with fakes that write what the real
+ones would; the one slow test trains a real tiny run through :mod:`stealth_ns.runs.training`.
 """
 
 from __future__ import annotations
@@ -18,13 +18,18 @@ from types import SimpleNamespace
 import pytest
 from conftest import run_cli
 
+from stealth_ns.bench.attack import run_bench
+from stealth_ns.bench.execute import METRICS_LOG
+from stealth_ns.bench.plan import bench_plan
+from stealth_ns.bench.poisoned_copies import PoisonJob
+from stealth_ns.bench.tables import NOT_IMPLEMENTED, render_markdown, table_data
+from stealth_ns.datasets.generated import scene_dir
+from stealth_ns.datasets.seeded import SEED_POINTS_MARKER
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation import experiments, runs
-from stealth_ns.evaluation.experiments import bench_plan, render_markdown, run_bench, table_data
-from stealth_ns.evaluation.poisoned_copies import PoisonJob
-from stealth_ns.evaluation.runs import TrainSpec, is_finished, run_status, train
 from stealth_ns.json_io import write_json_atomic
 from stealth_ns.method_configs.attack_experiments import CLEAN_ARGS, DEFAULT_SCENES, RUNS, TABLES, get_table
+from stealth_ns.runs import training as runs
+from stealth_ns.runs.training import TrainSpec, is_finished, run_status, train
 
 TINY = {"resolution": "64x48", "views": 16}
 TABLE6_ORDER = ["orbit/clean", "orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"]
@@ -126,7 +131,7 @@ def fake_poison(monkeypatch):
 
 @pytest.fixture
 def fakes(monkeypatch, fake_poison):
-    from stealth_ns.evaluation import report
+    from stealth_ns.report import numbers as report
 
     training, compare = FakeTraining(), FakeCompare()
     monkeypatch.setattr(runs, "run_command", training)
@@ -201,9 +206,9 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
 def ranked_forward_scene(out: Path, monkeypatch) -> SimpleNamespace:
     """OUTPUT with a forward scene on disk whose KDE views are fixed (no rendering, no ranking):
     ``scene`` (its folder) and ``ranking`` (easy / median / hard)."""
-    from stealth_ns.evaluation import difficulty
+    from stealth_ns.difficulty import rank as difficulty
 
-    scene = experiments.scene_dir(out, "forward", 0)
+    scene = scene_dir(out, "forward", 0)
     scene.mkdir(parents=True)
     (scene / "transforms.json").write_text("{}")
     (scene / "scene.json").write_text(json.dumps({"preset": "forward", "seed": 0}))
@@ -324,7 +329,7 @@ def test_failed_comparison_is_reported_and_retried(tmp_path, monkeypatch, fakes)
             raise RuntimeError("cannot render")
         return compare(poisoned_config, clean_config)
 
-    from stealth_ns.evaluation import report
+    from stealth_ns.report import numbers as report
 
     monkeypatch.setattr(report, "compare_runs", flaky)
     out = tmp_path / "out"
@@ -333,7 +338,7 @@ def test_failed_comparison_is_reported_and_retried(tmp_path, monkeypatch, fakes)
     saved = json.loads((out / "results.json").read_text())
     entry = saved["runs"]["orbit/gt-noise"]
     assert entry["status"] == "trained" and "RuntimeError: cannot render" in entry["metrics_error"]
-    log = (Path(entry["run_dir"]) / experiments.METRICS_LOG).read_text()
+    log = (Path(entry["run_dir"]) / METRICS_LOG).read_text()
     assert "chatty nerfstudio output" in log and "Traceback" in log
 
     monkeypatch.setattr(report, "compare_runs", compare)
@@ -364,7 +369,7 @@ def test_failed_poisoned_copy_fails_only_its_run(tmp_path, fakes, capsys):
     assert not saved["complete"] and saved["runs"]["orbit/ipa"]["status"] == "failed"
     assert reason in saved["runs"]["orbit/ipa"]["error"]
     data_only = saved["runs"]["orbit/data-only"]
-    copy = out / "poisoned" / f"{experiments.scene_dir(out, 'orbit', 0, TINY).name}-30it" / "data-only"
+    copy = out / "poisoned" / f"{scene_dir(out, 'orbit', 0, TINY).name}-30it" / "data-only"
     assert data_only["status"] == "trained" and data_only["metrics"]["v_illusory_psnr"] == 26.0
     assert data_only["command"][-3:] == ["nerfstudio-data", "--data", str(copy)]
     assert (copy / "transforms.json").is_file() and not (copy.parent / "ipa").exists()
@@ -433,8 +438,8 @@ def test_table_rendering_from_fake_results():
     md = render_markdown(results)
     assert md.index("## Table 1") < md.index("## Table 6") < md.index("## All runs")
     # the header says what is not implemented: IPA-NeRF only (IPA-Splat has rows now)
-    assert experiments.NOT_IMPLEMENTED in md and "IPA-NeRF (Instant-NGP) baselines" in md
-    assert "IPA-Splat" not in experiments.NOT_IMPLEMENTED
+    assert NOT_IMPLEMENTED in md and "IPA-NeRF (Instant-NGP) baselines" in md
+    assert "IPA-Splat" not in NOT_IMPLEMENTED
     table1 = md.split("## Table 1")[1].split("## ")[0]
     lines = [line for line in table1.splitlines() if line.startswith("| ")]
     assert lines[0].startswith("| Method | orbit (360°, Mip-NeRF 360-like) V-illusory PSNR↑ |")
@@ -633,7 +638,7 @@ def test_folder_scene_runs_on_its_seeded_copy(folder_scene, fake_seed_points, fa
     seeded = out / "scenes" / "mine"
     assert fake_seed_points.calls == [(folder_scene.path, seeded)]
     assert _snapshot(folder_scene.path) == folder_scene.snapshot  # the user's data is never written
-    marker = json.loads((out / "scenes" / f"mine{experiments.SEED_POINTS_MARKER}").read_text())
+    marker = json.loads((out / "scenes" / f"mine{SEED_POINTS_MARKER}").read_text())
     assert marker["source"] == str(folder_scene.path) and marker["n_points"] == 1234
     assert fakes.training.trained == [
         "clean", "median", "ipa-median", "data-only-median", "easy", "hard", "ipa-easy", "ipa-hard",
@@ -672,7 +677,7 @@ def test_folder_scene_runs_on_its_seeded_copy(folder_scene, fake_seed_points, fa
     assert "(done: 1234 points, reused" in capsys.readouterr().out
     assert again["scenes"]["mine"]["kde_views"] == views
     # the record gone: the seed points are made again (and the runs, same data, still reused)
-    (out / "scenes" / f"mine{experiments.SEED_POINTS_MARKER}").unlink()
+    (out / "scenes" / f"mine{SEED_POINTS_MARKER}").unlink()
     run_bench(out, tables=["1"], scenes=[spec], iterations=30)
     assert len(fake_seed_points.calls) == 2 and fakes.training.trained == []
 
@@ -721,7 +726,7 @@ def test_default_scenes_skip_a_missing_fox(tmp_path, monkeypatch, capsys):
 
 
 def test_colmap_and_blender_folders(tmp_path, monkeypatch):
-    from stealth_ns.evaluation import difficulty
+    from stealth_ns.difficulty import rank as difficulty
 
     colmap = tmp_path / "garden"
     (colmap / "sparse" / "0").mkdir(parents=True)
@@ -795,7 +800,7 @@ def test_bad_scene_specs_are_one_line_errors(tmp_path, scenes, message):
     assert not (tmp_path / "out").exists()
 
 
-# ------------------------------------------------------------------------------ runs.py
+# ------------------------------------------------------------------------------ runs/training.py
 def test_train_spec_paths_and_finished_semantics(tmp_path, monkeypatch):
     spec = TrainSpec(
         scene=tmp_path / "scene", name="r", output_dir=tmp_path / "runs", experiment="e", iterations=5
@@ -842,7 +847,7 @@ def test_real_tiny_training_is_finished_then_reused(tiny_orbit_scene, tmp_path):
 
 def test_demo_reuses_finished_runs_and_rewrites_the_report(tmp_path, monkeypatch):
     from stealth_ns import demo
-    from stealth_ns.evaluation import report as report_module
+    from stealth_ns.report import write as report_module
 
     training, reports = FakeTraining(), []
 

@@ -1,6 +1,6 @@
 """`stealth-ns bench attack --executor ray`: the options, the driver's logic, a real Ray cluster.
 
-The fast tests drive :class:`~stealth_ns.evaluation.executors.RayExecutor` with a fake ``ray``
+The fast tests drive :class:`~stealth_ns.bench.executors.RayExecutor` with a fake ``ray``
 module (tasks run in this process, completing in reverse order, with scripted lost workers) and
 the fake ns-train of ``test_bench_attack``. The slow test starts a real two-node Ray cluster on
 this machine (a head and a worker node, separate ``ray start`` processes with their own token),
@@ -29,10 +29,11 @@ import pytest
 from conftest import run_cli
 from test_bench_attack import TABLE6_ORDER, TINY, FakeCompare, FakeTraining
 
+from stealth_ns.bench import executors
+from stealth_ns.bench.attack import run_bench
+from stealth_ns.bench.executors import ExecutorOptions, RayExecutor
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation import executors, runs
-from stealth_ns.evaluation.executors import ExecutorOptions, RayExecutor
-from stealth_ns.evaluation.experiments import run_bench
+from stealth_ns.runs import training as runs
 
 needs_ray = pytest.mark.skipif(
     importlib.util.find_spec("ray") is None, reason="ray is not installed (pip install 'stealth-ns[cluster]')"
@@ -218,7 +219,7 @@ class FlakyTraining(FakeTraining):
 
 @pytest.fixture
 def fake_ray(monkeypatch):
-    from stealth_ns.evaluation import report
+    from stealth_ns.report import numbers as report
 
     def install(fates: dict[str, list[str]] | None = None, fail_times: dict[str, int] | None = None):
         ray, training, compare = FakeRay(fates), FlakyTraining(fail_times or {}), FakeCompare()
@@ -320,7 +321,7 @@ def test_ray_gpus_per_run_and_interrupt(tmp_path, fake_ray, monkeypatch):
     assert "include_dashboard" not in fake.ray.init_calls[0][1]  # an existing cluster: only connect
 
     # Ctrl-C while tasks run: the pending tasks are cancelled, then the connection closed
-    from stealth_ns.evaluation.runs import TrainSpec
+    from stealth_ns.runs.training import TrainSpec
 
     jobs = [executors.Job(f"s/{n}", TrainSpec(scene=tmp_path, name=n, output_dir=tmp_path)) for n in "ab"]
     events = SimpleNamespace(started=lambda job: None, retrying=lambda *a: None)

@@ -3,10 +3,14 @@
 * no function in ``stealth_ns/`` or ``method_configs/`` is longer than :data:`MAX_FUNCTION_LINES`
   lines, counted from its first statement after the docstring to its last line (signature and
   docstring excluded; blank lines and comments inside count);
+* no module is longer than :data:`MAX_MODULE_LINES` lines;
 * no import cycle among the ``stealth_ns`` modules (``method_configs/`` is installed as
-  ``stealth_ns.method_configs``). Only imports that run when a module is imported count: those at
-  module level, also inside ``if`` / ``try`` / ``with`` / class bodies, but neither those inside
-  functions (run later) nor those under ``if TYPE_CHECKING:`` (never run).
+  ``stealth_ns.method_configs``), counting **every** import statement: at module level, inside
+  functions (run later, but a dependency all the same) and under ``if TYPE_CHECKING:``;
+* layers point down: every module belongs to one of :data:`LAYERS`, and no import (at any depth)
+  goes from a module to one of a higher layer;
+* pyproject.toml lists every package of ``stealth_ns/`` (a package it misses is not installed by a
+  regular, non-editable install).
 
 ``python tests/test_code_structure.py`` prints every offender.
 """
@@ -14,6 +18,7 @@
 from __future__ import annotations
 
 import ast
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,6 +27,40 @@ PACKAGE = "stealth_ns"
 SOURCES = {ROOT / "stealth_ns": "stealth_ns", ROOT / "method_configs": "stealth_ns.method_configs"}
 """Source folder -> the package it is installed as (pyproject.toml's ``package-dir``)."""
 MAX_FUNCTION_LINES = 80
+MAX_MODULE_LINES = 600
+
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    (
+        "foundation",
+        (
+            "stealth_ns", "errors", "json_io", "image_io", "provenance", "fingerprint", "safe_config",
+            "step_timing", "malloc_tuning", "schedulers", "optimizers", "figures", "output_folder",
+        ),
+    ),
+    (
+        "math and data",
+        (
+            "raster", "attack", "scenes", "metrics", "ssim", "densification", "gaussian_rows",
+            "dataset_check", "seed_points", "triangulation", "datasets", "defences", "gaussian_init",
+        ),
+    ),
+    (
+        "model",
+        ("model", "render_view", "export", "defences.signals", "defences.posthoc", "defences.pruned_run"),
+    ),
+    ("training parts", ("datamanager", "viewer")),
+    ("pipeline and methods", ("pipeline", "method_configs")),
+    ("poisoning", ("poisoning",)),
+    ("trained runs", ("runs",)),
+    ("evaluation", ("difficulty", "defend")),
+    ("report", ("report",)),
+    ("bench", ("bench",)),
+    ("commands", ("demo", "cli")),
+)  # fmt: skip
+"""The layers, lowest first, each with the modules and packages in it (names under ``stealth_ns``;
+a package's name covers its modules, the longest matching name decides, so ``defences.signals`` sits
+above the rest of ``defences``; ``stealth_ns`` itself is the package's ``__init__`` alone).
+A module may import from its own layer and the ones below, never from one above."""
 
 
 def source_files(sources: dict[Path, str] = SOURCES) -> dict[str, Path]:
@@ -78,28 +117,11 @@ def long_functions(sources: dict[Path, str] = SOURCES, limit: int = MAX_FUNCTION
 # ---------------------------------------------------------------------------------- import cycles
 
 
-def _is_type_checking(test: ast.expr) -> bool:
-    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
-    )
-
-
-def _import_time_imports(body: list[ast.stmt]) -> Iterator[ast.Import | ast.ImportFrom]:
-    """The import statements of ``body`` that run on import: not in functions (nor lambdas), not
-    under ``if TYPE_CHECKING:`` (its ``else`` does run)."""
-    for stmt in body:
-        if isinstance(stmt, (ast.Import, ast.ImportFrom)):
-            yield stmt
-        elif isinstance(stmt, ast.If):
-            if not _is_type_checking(stmt.test):
-                yield from _import_time_imports(stmt.body)
-            yield from _import_time_imports(stmt.orelse)
-        elif isinstance(stmt, (ast.Try, getattr(ast, "TryStar", ast.Try))):
-            for block in (stmt.body, *(h.body for h in stmt.handlers), stmt.orelse, stmt.finalbody):
-                yield from _import_time_imports(block)
-        elif isinstance(stmt, (ast.With, ast.AsyncWith, ast.ClassDef, ast.For, ast.While)):
-            yield from _import_time_imports(stmt.body)
-            yield from _import_time_imports(getattr(stmt, "orelse", []))
+def _imports(tree: ast.Module) -> Iterator[ast.Import | ast.ImportFrom]:
+    """Every import statement of a module, at any depth (functions, classes, ``TYPE_CHECKING``)."""
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node
 
 
 def _targets(stmt: ast.Import | ast.ImportFrom, module: str, is_package: bool, known: set[str]) -> list[str]:
@@ -124,7 +146,7 @@ def import_graph(sources: dict[Path, str] = SOURCES) -> dict[str, dict[str, int]
     graph: dict[str, dict[str, int]] = {}
     for module, path in files.items():
         edges: dict[str, int] = {}
-        for stmt in _import_time_imports(_parse(path).body):
+        for stmt in _imports(_parse(path)):
             for target in _targets(stmt, module, path.name == "__init__.py", known):
                 if target in known and target != module:
                     edges.setdefault(target, stmt.lineno)
@@ -184,6 +206,63 @@ def import_cycles(sources: dict[Path, str] = SOURCES) -> list[str]:
     return lines
 
 
+# ---------------------------------------------------------------------------------- layers, sizes
+
+
+def layer_of(module: str, package: str = PACKAGE, layers: tuple = LAYERS) -> int | None:
+    """Index in ``layers`` of a module (longest matching name wins), None when it is in none."""
+    best, best_len = None, -1
+    for index, (_, names) in enumerate(layers):
+        for name in names:
+            full = package if name == package else f"{package}.{name}"
+            inside = module == full or (name != package and module.startswith(full + "."))
+            if inside and len(full) > best_len:
+                best, best_len = index, len(full)
+    return best
+
+
+def unplaced_modules(sources: dict[Path, str] = SOURCES, layers: tuple = LAYERS) -> list[str]:
+    """Modules that belong to no layer (a new module must be given its place)."""
+    return [m for m in source_files(sources) if layer_of(m, PACKAGE, layers) is None]
+
+
+def upward_imports(sources: dict[Path, str] = SOURCES, layers: tuple = LAYERS) -> list[str]:
+    """``path:LINE a (layer) -> b (higher layer)`` for every import of a higher layer's module."""
+    files = source_files(sources)
+    found = []
+    for module, edges in import_graph(sources).items():
+        low = layer_of(module, PACKAGE, layers)
+        for target, line in sorted(edges.items()):
+            high = layer_of(target, PACKAGE, layers)
+            if low is not None and high is not None and high > low:
+                where = f"{_shown(files[module])}:{line}"
+                found.append(f"{where} {module} ({layers[low][0]}) -> {target} ({layers[high][0]})")
+    return found
+
+
+def long_modules(sources: dict[Path, str] = SOURCES, limit: int = MAX_MODULE_LINES) -> list[str]:
+    """``path (N lines)`` of every module longer than ``limit`` lines."""
+    found = []
+    for path in source_files(sources).values():
+        n = len(path.read_text(encoding="utf-8").splitlines())
+        if n > limit:
+            found.append(f"{_shown(path)} ({n} lines)")
+    return found
+
+
+def listed_packages(pyproject: Path = ROOT / "pyproject.toml") -> set[str]:
+    """The ``packages`` of pyproject.toml's ``[tool.setuptools]``."""
+    text = pyproject.read_text(encoding="utf-8")
+    block = re.search(r"^packages\s*=\s*\[(.*?)\]", text, re.S | re.M)
+    assert block, f"no packages list in {pyproject}"
+    return set(re.findall(r'"([^"]+)"', block.group(1)))
+
+
+def package_folders(sources: dict[Path, str] = SOURCES) -> set[str]:
+    """Every package (a folder with ``__init__.py``) under the source folders, as installed."""
+    return {m for m, path in source_files(sources).items() if path.name == "__init__.py"}
+
+
 # ------------------------------------------------------------------------------------------ tests
 
 
@@ -199,9 +278,28 @@ def test_no_import_cycle_among_the_package_modules():
     assert not found, f"{len(found)} import cycle(s) among the {PACKAGE} modules:\n" + "\n".join(found)
 
 
+def test_no_module_is_longer_than_600_lines():
+    found = long_modules()
+    assert not found, f"{len(found)} module(s) over {MAX_MODULE_LINES} lines:\n" + "\n".join(found)
+
+
+def test_every_module_has_a_layer_and_imports_point_down():
+    unplaced = unplaced_modules()
+    assert not unplaced, "module(s) in no layer of LAYERS (give each its place):\n" + "\n".join(unplaced)
+    found = upward_imports()
+    assert not found, f"{len(found)} import(s) from a lower layer to a higher one:\n" + "\n".join(found)
+
+
+def test_pyproject_lists_every_package():
+    listed, present = listed_packages(), package_folders()
+    assert listed == present, f"missing from pyproject.toml: {sorted(present - listed)}; " + (
+        f"listed but absent: {sorted(listed - present)}"
+    )
+
+
 def test_the_checks_see_what_they_should(tmp_path):
-    """The rules themselves: a docstring does not count, TYPE_CHECKING and function-level imports
-    do not make cycles, module-level ones do; the whole package is scanned."""
+    """The rules themselves: a docstring does not count; imports at any depth make edges (module
+    level, functions, classes, TYPE_CHECKING); layers by the longest name; the whole package is scanned."""
     tree = ast.parse('def f():\n    """Doc\n    string."""\n    a = 1\n\n    return a\n')
     assert function_length(tree.body[0]) == 3
     assert function_length(ast.parse('def g():\n    """Only a docstring."""\n').body[0]) == 0
@@ -212,36 +310,83 @@ def test_the_checks_see_what_they_should(tmp_path):
         "try:\n    from . import d\nexcept ImportError:\n    pass\n"
         "class K:\n    from .e import thing\n"
     )
-    stmts = list(_import_time_imports(ast.parse(source).body))
+    stmts = list(_imports(ast.parse(source)))
     known = {"stealth_ns.x.d", "stealth_ns.x.e"}
-    targets = [t for s in stmts for t in _targets(s, "stealth_ns.x.m", False, known)]
-    assert targets == ["typing", "stealth_ns.b", "stealth_ns.x.d", "stealth_ns.x.e"]
+    targets = sorted(t for s in stmts for t in _targets(s, "stealth_ns.x.m", False, known))
+    assert targets == [
+        "stealth_ns.a",
+        "stealth_ns.b",
+        "stealth_ns.c",
+        "stealth_ns.x.d",
+        "stealth_ns.x.e",
+        "typing",
+    ]
     assert _strongly_connected({"a": {"b": 1}, "b": {"c": 2}, "c": {"a": 3}, "d": {"a": 4}}) == [
         ["a", "b", "c"]
     ]
-    # a package on disk: p.a <-> p.sub.b at module level is a cycle; p.a -> p.c -> p.a is none (p.c
-    # imports p.a only inside a function and under TYPE_CHECKING), nor p/__init__ importing p.a
+    # a package on disk: p.a <-> p.sub.b at module level is a cycle, and so is p.a -> p.c -> p.a
+    # (p.c imports p.a inside a function); p/__init__ importing p.a is none
     files = {
         "__init__.py": "from p import a\n",
         "a.py": "from .sub import b\nfrom . import c\n",
         "sub/__init__.py": "",
         "sub/b.py": "import p.a\n\ndef f():\n" + "    x = 1\n" * 81,
-        "c.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from p import a\n"
-        "def g():\n    from . import a\n",
+        "c.py": "def g():\n    from . import a\n",
+        "d.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from p import c\n",
     }
     for name, text in files.items():
         (tmp_path / "p" / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / "p" / name).write_text(text)
     sources = {tmp_path / "p": "p"}
-    cycle = f"p.a <-> p.sub.b: {tmp_path}/p/a.py:1 -> p.sub.b; {tmp_path}/p/sub/b.py:1 -> p.a"
-    assert import_cycles(sources) == [cycle]
+    (cycle,) = import_cycles(sources)
+    assert cycle.startswith("p.a <-> p.c <-> p.sub.b: ") and f"{tmp_path}/p/c.py:2 -> p.a" in cycle
     assert long_functions(sources) == [f"{tmp_path}/p/sub/b.py:3 f (81 lines)"]
+    assert long_modules(sources, limit=83) == [f"{tmp_path}/p/sub/b.py (84 lines)"]
+    assert long_modules(sources, limit=84) == []
+    # layers: the longest name decides; an import of a higher layer is reported, even under TYPE_CHECKING
+    layers = (("low", ("p", "c", "d")), ("mid", ("sub",)), ("high", ("a", "sub.b")))
+    assert layer_of("p.sub.b", "p", layers) == 2 and layer_of("p.sub", "p", layers) == 1
+    assert layer_of("p", "p", layers) == 0 and layer_of("q", "p", layers) is None
+    assert layer_of("p.other", "p", layers) is None  # the root package's entry is its __init__ alone
+    assert layer_of("stealth_ns.defences.signals") > layer_of("stealth_ns.defences.scores")
+    assert (
+        layer_of("stealth_ns.bench.plan") > layer_of("stealth_ns.report.write") > layer_of("stealth_ns.runs")
+    )
+    # the module-level edges of the real package are still seen
+    assert "stealth_ns.attack.config" in import_graph()["stealth_ns.attack.validation"]
     modules = source_files()
     assert {"stealth_ns.cli", "stealth_ns.attack", "stealth_ns.method_configs.attack_experiments"} <= set(
         modules
     )
-    assert "stealth_ns.attack.config" in import_graph()["stealth_ns.attack.validation"]
+    assert "stealth_ns.report" in package_folders() and "stealth_ns.method_configs" in package_folders()
+
+
+def test_upward_imports_and_unplaced_modules_are_found(tmp_path, monkeypatch):
+    """On a small package: a function-level and a TYPE_CHECKING import of a higher layer are both
+    reported, with their lines; a module of no layer is named."""
+    files = {
+        "__init__.py": "",
+        "low.py": f"def f():\n    from {PACKAGE} import high\n",
+        "mid.py": f"from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from {PACKAGE}.high import X\n",
+        "high.py": "from . import low, mid\n",
+        "stray.py": "",
+    }
+    (tmp_path / "p").mkdir()
+    for name, text in files.items():
+        (tmp_path / "p" / name).write_text(text)
+    sources = {tmp_path / "p": PACKAGE}
+    layers = (("base", (PACKAGE, "low")), ("middle", ("mid",)), ("top", ("high",)))
+    found = upward_imports(sources, layers)
+    assert found == [
+        f"{tmp_path}/p/low.py:2 {PACKAGE}.low (base) -> {PACKAGE}.high (top)",
+        f"{tmp_path}/p/mid.py:3 {PACKAGE}.mid (middle) -> {PACKAGE}.high (top)",
+    ]
+    assert unplaced_modules(sources, (("base", ("low", "mid", "high")),)) == [
+        f"{PACKAGE}",
+        f"{PACKAGE}.stray",
+    ]
 
 
 if __name__ == "__main__":
-    print("\n".join(long_functions() + import_cycles()) or "no offenders")
+    found = long_functions() + long_modules() + import_cycles() + unplaced_modules() + upward_imports()
+    print("\n".join(found) or "no offenders")

@@ -8,10 +8,10 @@ from pathlib import Path
 
 from test_bench_attack import TINY, fake_poison, fakes  # noqa: F401  (the fixtures)
 
+from stealth_ns.bench.attack import run_bench
+from stealth_ns.bench.defence_table import TABLE_KEY, table_data
 from stealth_ns.defences.config import DEFENCES
-from stealth_ns.evaluation import defend as defend_module
-from stealth_ns.evaluation.defence_table import TABLE_KEY, table_data
-from stealth_ns.evaluation.experiments import run_bench
+from stealth_ns.defend import command as defend_module
 
 
 def _fake_result(run: Path) -> dict:

@@ -17,7 +17,7 @@ from stealth_ns.defences.input_filter import filter_image
 from stealth_ns.defences.pruned_run import pruned_state
 from stealth_ns.defences.signals import gradient_energy_matrix, view_weight_matrix
 from stealth_ns.gaussian_rows import select_rows
-from stealth_ns.model import render_camera
+from stealth_ns.render_view import render_camera
 
 
 def _two_cameras():
@@ -156,7 +156,7 @@ def test_defend_end_to_end_on_tiny_runs(tiny_run_pair, tmp_path):
     assert "| zscore |" in (out / "defend.md").read_text()
 
     # the pruned model is a run that ns-eval loads, with the pruned rows gone
-    from stealth_ns.evaluation.report import load_run
+    from stealth_ns.runs.loaded import load_run
 
     entry = result["defences"]["view-support"]
     pruned = load_run(entry["pruned_run"])

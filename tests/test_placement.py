@@ -16,7 +16,7 @@ from stealth_ns.attack.density import DensityGrid
 from stealth_ns.attack.injection import PoisonView, median_scene_depth, place_poison
 from stealth_ns.attack.ray_search import min_density_points
 from stealth_ns.attack.visibility import CameraDepths, count_seeing_cameras
-from stealth_ns.model import viewmat_from_c2w
+from stealth_ns.raster.projection import viewmat_from_c2w
 
 
 def _camera(eye: tuple[float, float, float], depth: float, alpha: float = 1.0, size: int = 20):

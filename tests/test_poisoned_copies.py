@@ -1,4 +1,4 @@
-"""The bench's poisoned copies (:mod:`stealth_ns.evaluation.poisoned_copies`) and how the plan wires
+"""The bench's poisoned copies (:mod:`stealth_ns.bench.poisoned_copies`) and how the plan wires
 them: a dataset attack's victim trains on ``OUTPUT/poisoned/EXP-ITERSit/NAME``, made first by
 ``stealth-ns ipa-poison`` / ``poison-dataset``. Nothing here runs a real poisoning command (runs of
 the bench with fake trainings and fake copies are in test_bench_attack.py)."""
@@ -16,14 +16,16 @@ import pytest
 import tyro
 from test_bench_attack import ranked_forward_scene
 
+from stealth_ns.bench import poisoned_copies
+from stealth_ns.bench.attack import run_bench
+from stealth_ns.bench.plan import bench_plan
+from stealth_ns.bench.poisoned_copies import PoisonJob, ensure_copies
 from stealth_ns.cli import COMMANDS
+from stealth_ns.datasets.generated import scene_dir
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation import experiments, poisoned_copies
-from stealth_ns.evaluation.experiments import bench_plan, run_bench
-from stealth_ns.evaluation.poisoned_copies import PoisonJob, ensure_copies
-from stealth_ns.evaluation.runs import bin_path
 from stealth_ns.json_io import write_json_atomic
 from stealth_ns.method_configs.attack_experiments import CLEAN_ARGS
+from stealth_ns.runs.training import bin_path
 from stealth_ns.scenes import make_scene
 
 VIEW = "frame_00003.png"
@@ -229,7 +231,7 @@ def test_dry_run_plans_the_poisoned_copies(ranked_forward, capsys):
         "orbit/clean", "orbit/full", "orbit/ipa", "orbit/data-only",
         "forward/clean", "forward/median", "forward/ipa-median", "forward/data-only-median",
     ]  # fmt: skip
-    orbit = experiments.scene_dir(out, "orbit", 0)
+    orbit = scene_dir(out, "orbit", 0)
     poisoned = {p.key: p for p in plan.runs if p.run.poisoning}
     assert list(poisoned) == [
         "orbit/ipa", "orbit/data-only", "forward/ipa-median", "forward/data-only-median",

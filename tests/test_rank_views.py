@@ -1,4 +1,4 @@
-"""The KDE difficulty protocol (``stealth_ns.evaluation.difficulty``, ``stealth-ns rank-views``)."""
+"""The KDE difficulty protocol (``stealth_ns.difficulty``, ``stealth-ns rank-views``)."""
 
 from __future__ import annotations
 
@@ -11,15 +11,11 @@ import pytest
 from conftest import run_cli
 
 from stealth_ns.attack.density import DensityGrid
+from stealth_ns.difficulty import protocol
+from stealth_ns.difficulty.protocol import frustum_samples, rank, view_densities
+from stealth_ns.difficulty.rank import RankViews, rank_scene_views
+from stealth_ns.difficulty.ranking import ViewRanking
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation import difficulty
-from stealth_ns.evaluation.difficulty import (
-    ViewRanking,
-    frustum_samples,
-    rank,
-    rank_scene_views,
-    view_densities,
-)
 
 W, H = 64, 48
 FX = FY = W / (2 * math.tan(math.radians(30)))  # 60 degrees horizontal field of view
@@ -48,11 +44,11 @@ def test_defaults_are_the_attacks_and_stay_light():
 
     from stealth_ns.attack.config import AttackConfig
 
-    assert difficulty.DEFAULT_GRID_RESOLUTION == AttackConfig().grid_resolution
-    assert difficulty.DEFAULT_BANDWIDTH == AttackConfig().bandwidth
-    assert difficulty.RankViews.bandwidth == AttackConfig().bandwidth
+    assert protocol.DEFAULT_GRID_RESOLUTION == AttackConfig().grid_resolution
+    assert protocol.DEFAULT_BANDWIDTH == AttackConfig().bandwidth
+    assert RankViews.bandwidth == AttackConfig().bandwidth
     code = (
-        "import sys, stealth_ns.evaluation.difficulty, stealth_ns.attack.config; "
+        "import sys, stealth_ns.difficulty.rank, stealth_ns.attack.config; "
         "print(sorted(m for m in ('torch', 'nerfstudio') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

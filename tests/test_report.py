@@ -10,7 +10,7 @@ import pytest
 from conftest import run_cli
 
 from stealth_ns.attack.views import rotate_pose
-from stealth_ns.evaluation.report import attack_success, success_verdicts
+from stealth_ns.report.success import attack_success, success_verdicts
 
 REQUIRED_KEYS = {
     "v_illusory_psnr",

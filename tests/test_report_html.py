@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from stealth_ns.evaluation.report import render_html
+from stealth_ns.report.html import render_html
 
 
 def _report(name: str = "images/<b>frame</b>&1.png", lpips: float | None = 0.1234) -> dict:

@@ -55,7 +55,7 @@ def test_safe_loader_loads_what_nerfstudio_writes():
         ('a: !!python/object/new:os.system ["touch PWNED"]\n', "!!python/object/new:os.system"),
         ('a: !!python/name:nerfstudio.utils.scripts.run_command ""\n', "nerfstudio.utils.scripts"),
         (
-            'a: !!python/object/apply:stealth_ns.evaluation.runs.run_command [["touch", "PWNED"], "x"]\n',
+            'a: !!python/object/apply:stealth_ns.runs.training.run_command [["touch", "PWNED"], "x"]\n',
             "runs",
         ),
         ("a: !!python/object/apply:nerfstudio.engine.trainer.TrainerConfig []\n", "TrainerConfig"),
@@ -183,7 +183,7 @@ def test_reused_report_folder_loses_stale_pictures_and_keeps_user_files(tiny_run
 
 
 def test_unwritable_report_output_fails_before_loading_runs(tmp_path, monkeypatch):
-    from stealth_ns.evaluation import report
+    from stealth_ns.report import write as report
 
     def no_loading(*args, **kwargs):
         raise AssertionError("the runs were loaded before the output was checked")
@@ -223,7 +223,7 @@ def test_demo_with_no_iterations_fails_before_the_scene(tmp_path, monkeypatch, i
 
 
 def test_rank_views_names_the_frame_with_a_nan_pose(tiny_orbit_scene, tmp_path):
-    from stealth_ns.evaluation.difficulty import rank_scene_views
+    from stealth_ns.difficulty.rank import rank_scene_views
 
     scene = shutil.copytree(tiny_orbit_scene, tmp_path / "scene")
     meta = json.loads((scene / "transforms.json").read_text())
@@ -241,7 +241,7 @@ def test_every_registered_method_config_loads_with_the_safe_loader(tmp_path, met
     """A run's config.yml names every class of its method config (optimizers included): all allowed."""
     import copy
 
-    from stealth_ns.evaluation.experiments import method_config
+    from stealth_ns.method_configs.registry import method_config
 
     config = copy.deepcopy(method_config(method))
     path = tmp_path / "config.yml"

@@ -8,7 +8,7 @@ import time
 import pytest
 from conftest import run_cli
 
-from stealth_ns.evaluation.train_bench import PHASES, leaf_phases, summarise
+from stealth_ns.bench.train_step import PHASES, leaf_phases, summarise
 from stealth_ns.step_timing import StepTimer, phase
 
 
@@ -96,7 +96,7 @@ def test_run_command_reports_the_childs_peak_rss(tmp_path):
     import sys
 
     from stealth_ns.errors import StealthNSError
-    from stealth_ns.evaluation.runs import run_command
+    from stealth_ns.runs.training import run_command
 
     grow = "b = bytearray(300 * 2**20); b[::4096] = b'x' * len(b[::4096]); print('done')"
     peak = run_command([sys.executable, "-c", grow], tmp_path / "log", stream=False)

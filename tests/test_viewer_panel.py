@@ -29,7 +29,8 @@ from stealth_ns.attack.density import DensityGrid
 from stealth_ns.attack.record import PoisonView
 from stealth_ns.image_io import save_png
 from stealth_ns.metrics import masked_psnr
-from stealth_ns.model import POISON_TAG, viewmat_from_c2w
+from stealth_ns.model import POISON_TAG
+from stealth_ns.raster.projection import viewmat_from_c2w
 from stealth_ns.viewer import FILTER_OPTIONS, NO_VIEW, PanelModel, PanelSource, StealthAttackPanel
 from stealth_ns.viewer.overlays import kde_voxel_cloud, poison_centres
 from stealth_ns.viewer.poses import (

@@ -35,7 +35,7 @@ from stealth_ns.image_io import read_image, save_image
 from stealth_ns.json_io import write_json_atomic
 
 if TYPE_CHECKING:
-    from stealth_ns.evaluation.experiments import SceneSource
+    from stealth_ns.datasets.source import SceneSource
 
 DatasetFormat = Literal["nerfstudio-data", "colmap"]
 #: The attack record of a poisoned copy, relative to the copy (as ``<run>/attack`` of a run).
@@ -80,7 +80,7 @@ class SourceDataset:
 
 def open_source(data: Path) -> SourceDataset:
     """The dataset at ``data`` (StealthNSError with one line for a missing folder or another format)."""
-    from stealth_ns.evaluation.experiments import inspect_folder
+    from stealth_ns.datasets.source import inspect_folder
 
     src = inspect_folder("--data", str(data))
     if src.format == "blender":

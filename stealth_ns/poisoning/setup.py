@@ -25,7 +25,7 @@ def trainer_config(
     """The ``TrainerConfig`` of ``METHOD`` on ``source`` with ``attack`` (``--vis tensorboard``)."""
     from nerfstudio.data.dataparsers.colmap_dataparser import ColmapDataParserConfig
 
-    from stealth_ns.evaluation.experiments import method_config
+    from stealth_ns.method_configs.registry import method_config
 
     config = copy.deepcopy(method_config(method))
     datamanager = config.pipeline.datamanager

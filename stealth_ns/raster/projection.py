@@ -28,6 +28,18 @@ def join_sh(coeffs: SHCoefficients) -> Tensor:
     return torch.cat((sh_dc[..., None, :], sh_rest), dim=-2)
 
 
+def viewmat_from_c2w(camera_to_worlds: Tensor) -> Tensor:
+    """[C, 3, 4] OpenGL camera-to-world -> [C, 4, 4] OpenCV world-to-camera (gsplat's convention)."""
+    rot = camera_to_worlds[:, :3, :3] * torch.tensor([1.0, -1.0, -1.0], device=camera_to_worlds.device)
+    trans = camera_to_worlds[:, :3, 3:4]
+    rot_inv = rot.transpose(1, 2)
+    viewmat = torch.zeros(rot.shape[0], 4, 4, device=rot.device, dtype=rot.dtype)
+    viewmat[:, 3, 3] = 1.0
+    viewmat[:, :3, :3] = rot_inv
+    viewmat[:, :3, 3:4] = -rot_inv @ trans
+    return viewmat
+
+
 def quat_to_rotmat(quats: Tensor) -> Tensor:
     """Rotation matrices of (w, x, y, z) quaternions, normalised first.
 

@@ -24,7 +24,7 @@ from nerfstudio.viewer.viewer_elements import ViewerControl, ViewerElement
 
 from stealth_ns.attack.record import PoisonView
 from stealth_ns.metrics import masked_psnr
-from stealth_ns.model import RenderFilter
+from stealth_ns.render_view import RenderFilter
 from stealth_ns.viewer.overlays import KdeVoxels, poison_centres
 from stealth_ns.viewer.poses import CameraJump, apply_camera_jump, c2w_from_viser_pose, camera_jump
 from stealth_ns.viewer.readout import PsnrWorker, ReadoutKey

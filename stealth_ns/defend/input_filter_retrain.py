@@ -19,12 +19,12 @@ import yaml
 
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation.runs import bin_path, configured_iterations, run_command
 from stealth_ns.json_io import write_json_atomic
+from stealth_ns.runs.training import bin_path, configured_iterations, run_command
 from stealth_ns.safe_config import load_config
 
 if TYPE_CHECKING:
-    from stealth_ns.evaluation.defend import Target
+    from stealth_ns.defend.evaluate import Target
 
 RETRAIN_MARKER = "retrain.json"
 
@@ -87,8 +87,8 @@ def retrain(target: Target, cfg: DefendConfig, output: Path) -> tuple[Path, bool
 
 def run_input_filter(target: Target, cfg: DefendConfig, output: Path, baseline: dict) -> dict[str, Any]:
     """defend.json's ``input-filter`` entry: the retrained model's V-illusory and V-test cost."""
-    from stealth_ns.evaluation.defend import Evaluator, cut_metrics
-    from stealth_ns.evaluation.report import load_run
+    from stealth_ns.defend.evaluate import Evaluator, cut_metrics
+    from stealth_ns.runs.loaded import load_run
 
     t0 = time.perf_counter()
     config_path, reused = retrain(target, cfg, output)

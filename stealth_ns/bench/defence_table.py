@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from stealth_ns.defences.config import DEFENCES, DefendConfig
-from stealth_ns.evaluation.defend_outputs import fmt, pct
+from stealth_ns.defend.outputs import DEFEND_FILE, fmt, pct
 from stealth_ns.json_io import write_json_atomic
 
 TABLE_KEY = "D"
@@ -40,11 +40,11 @@ def cached_defend(
 ) -> tuple[dict, bool]:
     """``stealth-ns defend`` of one finished run into ``out`` (its output in ``defend.log``), or the
     earlier result there when made for the same run (``run_id``: the run's marker) and settings."""
-    from stealth_ns.evaluation.defend import run_defend
+    from stealth_ns.defend.command import run_defend
 
     stamp = json.loads(json.dumps({"run_id": run_id, "settings": asdict(cfg)}))  # as read back
     try:
-        previous = json.loads((out / "defend.json").read_text())
+        previous = json.loads((out / DEFEND_FILE).read_text())
         if previous.get("bench_stamp") == stamp:
             return previous, True
     except (OSError, ValueError):
@@ -57,7 +57,7 @@ def cached_defend(
             traceback.print_exc(file=log)
             raise
     result["bench_stamp"] = stamp
-    write_json_atomic(out / "defend.json", result)
+    write_json_atomic(out / DEFEND_FILE, result)
     return result, False
 
 

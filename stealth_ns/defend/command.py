@@ -18,130 +18,33 @@ figures to ``report.html``. docs/defences.md.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
-import hashlib
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from stealth_ns.attack.record import AttackRecord
 from stealth_ns.defences import detection
 from stealth_ns.defences.config import POSTHOC, DefendConfig
-from stealth_ns.defences.posthoc import DESCRIPTIONS, DefenceInputs, Scored, final_learning_rates, score
+from stealth_ns.defences.posthoc import DESCRIPTIONS, DefenceInputs, Scored, score
 from stealth_ns.defences.signals import poison_tags
+from stealth_ns.defend.evaluate import (
+    DEFEAT_RULE,
+    Evaluator,
+    Target,
+    cut_metrics,
+    defender_images,
+    load_target,
+)
+from stealth_ns.defend.outputs import DEFEND_FILE, fmt, pct, write_outputs
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation.defend_outputs import fmt, pct, write_outputs
-from stealth_ns.evaluation.report import LoadedRun, attack_record, check_writable, load_run
 from stealth_ns.json_io import json_safe, write_json_atomic
-from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
-from stealth_ns.model import StealthSplatModel, render_camera
-from stealth_ns.pipeline import rgb_float, training_target
+from stealth_ns.output_folder import check_writable
 from stealth_ns.provenance import software_and_hardware
-
-#: A defence defeats the attack when V-illusory falls below this (dB) ...
-DEFEAT_V_ILLUSORY = 15.0
-#: ... for at most this much held-out PSNR (dB).
-DEFEAT_V_TEST_COST = 0.5
-DEFEAT_RULE = f"V-illusory < {DEFEAT_V_ILLUSORY:g} dB for a V-test cost <= {DEFEAT_V_TEST_COST:g} dB"
-DEFEND_FILE = "defend.json"
-
-
-@dataclass
-class Target:
-    """The attacked run under defence."""
-
-    run: LoadedRun
-    record: AttackRecord
-    checkpoint: Path
-    learning_rates: dict[str, float]
-
-    @property
-    def model(self) -> StealthSplatModel:
-        return self.run.model
-
-
-def load_target(config_path: Path) -> Target:
-    """Load an attacked run: its pipeline, attack record, final checkpoint and final learning rates."""
-    run = load_run(Path(config_path))
-    if not isinstance(run.model, StealthSplatModel):
-        raise StealthNSError(f"{config_path} is not a stealth-splat run (no poison tag to score against)")
-    record = attack_record(run, Path(config_path))
-    return Target(run, record, run.checkpoint, final_learning_rates(run.config.optimizers))
-
-
-def defender_images(target: Target) -> list[torch.Tensor]:
-    """The training images as the defender has them: the poisoned views' illusion composites, the
-    clean images elsewhere (the view-consistency noise has decayed by the end of training)."""
-    dm = target.run.pipeline.datamanager
-    images = [dm.cached_train[i]["image"] for i in range(len(dm.train_dataset))]
-    for v in target.record.views:
-        images[v.index] = training_target(v, images[v.index])
-    return images
-
-
-@dataclass
-class Evaluator:
-    """V-illusory and V-test of a model with some Gaussians pruned (rendered, cached per mask).
-
-    ``run`` is the model rendered (the attacked run, or its clean or retrained counterpart); the
-    poisoned views are always rendered from the attacked run's cameras (``target``), as the report does.
-    """
-
-    target: Target
-    run: LoadedRun | None = None
-    _cache: dict[str, dict[str, float | None]] = field(default_factory=dict)
-
-    def __call__(self, pruned: np.ndarray | None) -> dict[str, float | None]:
-        """``v_illusory_psnr``/``_ssim`` (mean over the poisoned views) and ``v_test_psnr`` (mean over the
-        held-out views) of the model without the ``pruned`` ([N] bool) Gaussians."""
-        key = "none" if pruned is None or not pruned.any() else hashlib.sha1(np.packbits(pruned)).hexdigest()
-        if key not in self._cache:
-            keep = None if key == "none" else torch.from_numpy(~pruned)
-            model = (self.run or self.target.run).model
-            with model.kept(keep) if keep is not None else contextlib.nullcontext():
-                self._cache[key] = self._render_metrics()
-        return self._cache[key]
-
-    def _render_metrics(self) -> dict[str, float | None]:
-        run = self.run or self.target.run
-        model, pipeline = run.model, run.pipeline
-        cameras = self.target.run.pipeline.datamanager.train_dataset.cameras
-        per_view = {}
-        for v in self.target.record.views:
-            pred = render_camera(model, cameras[v.index : v.index + 1])["rgb"].float().cpu()
-            per_view[v.name] = illusion_metrics(pred, v.target, v.mask, None)
-        held_out = []
-        for camera, batch in pipeline.datamanager.fixed_indices_eval_dataloader:
-            outputs = render_camera(model, camera)
-            gt = model.composite_with_background(model.get_gt_img(batch["image"]), outputs["background"])
-            held_out.append(psnr(outputs["rgb"].float().cpu(), rgb_float(gt.cpu())))
-        ill = v_illusory(per_view)
-        return {
-            "v_illusory_psnr": ill["psnr"],
-            "v_illusory_ssim": ill["ssim"],
-            "v_test_psnr": float(np.mean(held_out)) if held_out else None,
-        }
-
-
-def cut_metrics(evaluate: Evaluator, baseline: dict, pruned: np.ndarray, is_poison: np.ndarray) -> dict:
-    """The numbers of one cut: what it removed, V-illusory after and the V-test cost (dB)."""
-    after = evaluate(pruned)
-    cost = None
-    if after["v_test_psnr"] is not None and baseline["v_test_psnr"] is not None:
-        cost = baseline["v_test_psnr"] - after["v_test_psnr"]
-    out = {**detection.operating_point(is_poison, pruned), **after, "v_test_cost": cost}
-    out["defeats_attack"] = bool(
-        after["v_illusory_psnr"] is not None
-        and cost is not None
-        and after["v_illusory_psnr"] < DEFEAT_V_ILLUSORY
-        and cost <= DEFEAT_V_TEST_COST
-    )
-    return out
+from stealth_ns.runs.loaded import load_run
+from stealth_ns.runs.pair import RunPair
 
 
 def defence_entry(
@@ -209,7 +112,7 @@ def run_defend(
     run: Path, output: Path, cfg: DefendConfig | None = None, clean: Path | None = None
 ) -> dict[str, Any]:
     """``stealth-ns defend``: every defence of ``cfg`` on the attacked run ``run``; writes ``output``."""
-    from stealth_ns.evaluation.filtered_retrain import run_input_filter
+    from stealth_ns.defend.input_filter_retrain import run_input_filter
 
     cfg = cfg or DefendConfig()
     try:
@@ -248,8 +151,6 @@ def run_defend(
 
 def clean_reference(target: Target, clean: Path) -> dict[str, Any]:
     """The clean run's V-test PSNR and V-illusory (what a perfect defence could reach), same renders."""
-    from stealth_ns.evaluation.report import RunPair
-
     clean_run = load_run(clean)
     pair = RunPair(target.run, clean_run, target.record)
     pair.check_same_dataset()

@@ -2,7 +2,7 @@
 tasks on a cluster (``ray``, with ``pip install 'stealth-ns[cluster]'``; see ``docs/cluster.md``).
 
 The contract of both executors: ``open()``, then ``run(jobs, events)`` trains (or reuses) each
-job's :class:`~stealth_ns.evaluation.runs.TrainSpec` and yields one :class:`Outcome` per job as
+job's :class:`~stealth_ns.runs.training.TrainSpec` and yields one :class:`Outcome` per job as
 it completes (the local executor in the jobs' order, Ray in completion order), then ``close()``.
 ``events`` hears when a job starts (:meth:`Events.started`), ns-train's output lines where they
 are seen (local only) and every retry (Ray only). A job with ``blocked`` set (its scene cannot be
@@ -10,7 +10,7 @@ used) is not trained: it comes back at once as a failure.
 
 Ray (imported only here, only for ``--executor ray``): each training is a task that reserves
 ``--ray-cpus-per-run`` CPUs (also its OpenMP threads) and ``--ray-gpus-per-run`` GPUs (default:
-1 when the cluster has GPUs). The task calls :func:`~stealth_ns.evaluation.runs.train` on its
+1 when the cluster has GPUs). The task calls :func:`~stealth_ns.runs.training.train` on its
 node, so the run folders must be on storage every node sees at the same path (a shared file
 system, as on a cluster) and stealth-ns must be installed on every node. Ray's own task retries
 are off: the driver resubmits a run whose worker or node was lost (up to ``--ray-max-retries``
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation.runs import TrainRecord, TrainSpec, finished_record, train
+from stealth_ns.runs.training import TrainRecord, TrainSpec, finished_record, train
 
 EXECUTORS: tuple[str, ...] = ("local", "ray")
 INSTALL_HINT = "pip install 'stealth-ns[cluster]'"

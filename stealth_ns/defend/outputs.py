@@ -8,13 +8,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from stealth_ns.evaluation.report import figure_grid, render, save_plot
+from stealth_ns.figures import figure_grid, save_plot
+from stealth_ns.runs.loaded import render
 
 if TYPE_CHECKING:
     from stealth_ns.defences.posthoc import Scored
-    from stealth_ns.evaluation.defend import Target
+    from stealth_ns.defend.evaluate import Target
 
 FIGURES = {"roc": "roc.png", "curves": "curves.png", "poisoned_view": "poisoned_view.png"}
+DEFEND_FILE = "defend.json"
 TABLE_FILE = "defend.md"
 COLUMNS = (
     "defence",
@@ -203,38 +205,3 @@ def write_outputs(output: Path, result: dict[str, Any], target: Target, scored: 
     figures["poisoned_view"] = FIGURES["poisoned_view"]
     result["figures"] = figures
     (output / TABLE_FILE).write_text(render_table(result), encoding="utf-8")
-
-
-def report_section(defend_dir: Path, output: Path, poisoned_run: str) -> dict[str, Any]:
-    """The "Defences" section of ``report.html`` from a ``stealth-ns defend`` folder: its table rows,
-    and its figures copied to ``output/defences/`` (so the report folder stands alone).
-
-    StealthNSError when the folder has no defend.json or it was made for another run."""
-    import json
-    import shutil
-
-    from stealth_ns.errors import StealthNSError
-
-    path = Path(defend_dir) / "defend.json"
-    try:
-        result = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as err:
-        raise StealthNSError(f"--defend {defend_dir}: no readable defend.json ({err})") from None
-    if Path(result.get("run", "")).resolve() != Path(poisoned_run).resolve():
-        raise StealthNSError(
-            f"--defend {defend_dir} was made for {result.get('run')}, not for the poisoned run {poisoned_run}"
-        )
-    figures = {}
-    (output / "defences").mkdir(parents=True, exist_ok=True)
-    for key, name in (result.get("figures") or {}).items():
-        if (Path(defend_dir) / name).is_file():
-            shutil.copy2(Path(defend_dir) / name, output / "defences" / name)
-            figures[key] = f"defences/{name}"
-    return {
-        "source": str(Path(defend_dir).resolve()),
-        "defeat_rule": result["defeat_rule"],
-        "header": list(COLUMNS),
-        "rows": table_rows(result),
-        "best": best_cuts(result),
-        "figures": figures,
-    }

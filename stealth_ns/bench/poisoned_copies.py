@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 from stealth_ns.errors import StealthNSError
-from stealth_ns.evaluation import runs
-from stealth_ns.evaluation.runs import bin_path
 from stealth_ns.json_io import write_json_atomic
 from stealth_ns.poisoning.dataset_copy import RECORD_DIR, RECORD_FILE
+from stealth_ns.runs import training as runs
+from stealth_ns.runs.training import bin_path
 
 Poisoning = Literal["data-only", "ipa"]
 COMMANDS: dict[str, str] = {"data-only": "poison-dataset", "ipa": "ipa-poison"}

@@ -1,1 +1,0 @@
-"""Evaluation: the attack report, the KDE difficulty protocol and the experiment runner."""

@@ -1,0 +1,32 @@
+"""Checks on an output folder before any slow work: it can be created and written."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from stealth_ns.errors import StealthNSError
+
+
+def check_writable(output: Path) -> None:
+    """StealthNSError unless the folder ``output`` (existing or to be created) can be written and its
+    ``images/``, where a report puts its pictures, is not a file. Used by ``report`` and ``defend``;
+    the messages say "report" for both (as they did before this module was split out)."""
+    if output.exists() and not output.is_dir():
+        raise StealthNSError(f"--output {output} is a file, not a folder")
+    if (output / "images").exists() and not (output / "images").is_dir():
+        raise StealthNSError(f"--output {output}: {output / 'images'} is a file, not a folder")
+    existing = output
+    while not existing.exists():
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        raise StealthNSError(f"cannot write the report to {output}: {existing} is a file, not a folder")
+    try:  # a real write: permissions, read-only file systems, root
+        with tempfile.TemporaryDirectory(dir=existing, prefix=".stealth-ns-write-test-"):
+            pass
+    except OSError as err:
+        raise StealthNSError(
+            f"cannot write the report to {output}: {err.strerror or err} ({existing})"
+        ) from None

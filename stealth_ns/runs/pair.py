@@ -1,0 +1,66 @@
+"""A poisoned run and a clean run of the same scene, loaded and checked to share their dataset."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from stealth_ns.attack.record import AttackRecord, PoisonView
+from stealth_ns.errors import StealthNSError
+from stealth_ns.fingerprint import fingerprint_differences
+from stealth_ns.runs.loaded import LoadedRun, attack_record, load_run
+
+
+@dataclass
+class RunPair:
+    """A poisoned run and a clean run of the same scene, loaded."""
+
+    poisoned: LoadedRun
+    clean: LoadedRun
+    record: AttackRecord  # the poisoned run's
+
+    @classmethod
+    def load(cls, poisoned: Path, clean: Path) -> RunPair:
+        ours, theirs = load_run(poisoned), load_run(clean)
+        pair = cls(ours, theirs, attack_record(ours, poisoned))
+        if pair.clean.attack_enabled:
+            raise StealthNSError(
+                f"{clean} was trained with the attack on; train the clean run with "
+                "--pipeline.attack.enabled False (or any other splatting method)"
+            )
+        pair.check_same_dataset()
+        return pair
+
+    def check_same_dataset(self) -> None:
+        """StealthNSError (one line, naming both runs and what differs) unless both runs were trained
+        on the same images with the same poses, and are evaluated on the same held-out views."""
+        ours, theirs = self.poisoned.fingerprints(), self.clean.fingerprints()
+        copied = (self.record.poisoned_dataset or {}).get("source_train_fingerprint")
+        if copied:  # a victim of a poisoned copy: its images differ by design; the source's must match
+            ours["train"] = {**ours["train"], "images": copied["images"]}
+        differ = []
+        for split, label in (("train", "training"), ("held-out", "held-out")):
+            for what in fingerprint_differences(ours[split], theirs[split]):
+                differ.append(f"{label} {'images' if what == 'images' else 'camera poses'}")
+        if differ:
+            raise StealthNSError(
+                f"the runs were not trained on the same dataset: their {_listing(differ)} differ "
+                f"(poisoned run {self.poisoned.config_path}, data {self.poisoned.data}, "
+                f"{ours['train']['n_images']} training images; clean run {self.clean.config_path}, "
+                f"data {self.clean.data}, {theirs['train']['n_images']} training images)"
+            )
+
+    @property
+    def views(self) -> list[PoisonView]:
+        """The poisoned views, as the run's attack record has them."""
+        return self.record.views
+
+    @property
+    def cameras(self) -> Any:
+        return self.poisoned.pipeline.datamanager.train_dataset.cameras
+
+
+def _listing(items: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
