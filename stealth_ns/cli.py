@@ -143,11 +143,14 @@ class Report:
     """Folder to write report.json, report.html, the figures and images/."""
     defend: Path | None = None
     """Output folder of `stealth-ns defend --run POISONED`: adds a "Defences" section to report.html."""
+    stealth: bool = True
+    """Measure the poisoned run's stealth: every post-hoc defence's AUROC, the V-illusory the strongest
+    leaves at <= 0.5 dB of V-test, stealthy success (seconds at the demo's scale; --no-stealth skips it)."""
 
     def main(self) -> None:
         from stealth_ns.report.write import summary_lines, write_report
 
-        report = write_report(self.poisoned, self.clean, self.output, self.defend)
+        report = write_report(self.poisoned, self.clean, self.output, self.defend, stealth=self.stealth)
         print("\n".join(summary_lines(report, self.output)))
 
 

@@ -19,12 +19,13 @@ import pytest
 from conftest import run_cli
 
 from stealth_ns.bench.attack import run_bench
-from stealth_ns.bench.execute import METRICS_LOG
+from stealth_ns.bench.execute import METRICS_FILE, METRICS_LOG
 from stealth_ns.bench.plan import bench_plan
 from stealth_ns.bench.poisoned_copies import PoisonJob
 from stealth_ns.bench.tables import NOT_IMPLEMENTED, render_markdown, table_data
 from stealth_ns.datasets.generated import scene_dir
 from stealth_ns.datasets.seeded import SEED_POINTS_MARKER
+from stealth_ns.defend.stealth import stealth_summary
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import write_json_atomic
 from stealth_ns.method_configs.attack_experiments import CLEAN_ARGS, DEFAULT_SCENES, RUNS, TABLES, get_table
@@ -94,6 +95,11 @@ class FakeCompare:
             "lpips_unavailable": "no AlexNet weights on this machine",
             "n_gaussians": 1000, "n_gaussians_clean": 1200, "n_poison_gaussians": 50,
             "poisoned_views": ["frame_00007.png"],
+            "stealth": stealth_summary(
+                {"view-support": {"kind": "post-hoc", "auroc": 0.9, "curve": [], "operating_point": {
+                    "v_illusory_psnr": 26.0 if name == "full" else 12.0, "v_test_cost": 0.1}}},
+                ill > 25 and drop <= 3,
+            ),
         }  # fmt: skip
 
 
@@ -261,6 +267,11 @@ def test_second_invocation_reuses_finished_runs(tmp_path, fakes, capsys):
     ]  # fmt: skip
     assert [r.rstrip(" |").split("|")[-1].strip() for r in rows] == ["0/1", "0/1", "0/1", "1/1"]
     assert "**27.50**" in rows[3] and "LPIPS shown as –: no AlexNet weights" in table6
+    stealth = md.split("## Stealth under the post-hoc defences")[1].split("## ")[0]
+    rows = {line.split(" | ")[0][2:]: line for line in stealth.splitlines() if line.startswith("| orbit/")}
+    assert set(rows) == {"orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"}  # no clean run
+    assert rows["orbit/full"].endswith("| 26.00 | none | yes |")
+    assert rows["orbit/gt-only"].endswith("| 12.00 | view-support | no |")
 
     capsys.readouterr()
     fakes.training.trained.clear()
@@ -273,6 +284,14 @@ def test_second_invocation_reuses_finished_runs(tmp_path, fakes, capsys):
         "0 to train, 0 unfinished on disk (deleted and retrained), 5 finished (reused)"
         in capsys.readouterr().out
     )
+
+    # metrics cached before the stealth was measured (no version in the stamp) are computed again
+    cache = Path(again["runs"]["orbit/full"]["run_dir"]) / METRICS_FILE
+    data = json.loads(cache.read_text())
+    del data["stamp"]["version"], data["metrics"]["stealth"]
+    cache.write_text(json.dumps(data))
+    third = run_bench(out, tables=["6"], scenes=["orbit"], iterations=30, scene_options=TINY)
+    assert fakes.compare.calls == ["full"] and "stealth" in third["runs"]["orbit/full"]["metrics"]
 
     # Table 4 on the same output reuses orbit/clean and orbit/full (h = 7.5)
     plan = bench_plan(out, tables=["4"], scenes=["orbit"], iterations=30, scene_options=TINY)

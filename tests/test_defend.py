@@ -16,6 +16,7 @@ from stealth_ns.defences.config import DEFENCES, DefendConfig
 from stealth_ns.defences.input_filter import filter_image
 from stealth_ns.defences.pruned_run import pruned_state
 from stealth_ns.defences.signals import gradient_energy_matrix, view_weight_matrix
+from stealth_ns.defend.stealth import stealth_summary
 from stealth_ns.gaussian_rows import select_rows
 from stealth_ns.render_view import render_camera
 
@@ -172,6 +173,13 @@ def test_defend_end_to_end_on_tiny_runs(tiny_run_pair, tmp_path):
     )  # fmt: skip
     page = (report / "report.html").read_text()
     assert "<h2>Defences</h2>" in page and "view-support" in page
+    # the report's stealth is defend's own scoring: the same AUROC for the defences that do not
+    # depend on the fine-tune's length (defend ran one epoch here, the report its default two)
+    stealth = json.loads((report / "report.json").read_text())["stealth"]
+    for name in ("zscore", "sor", "count-cap", "view-support"):
+        assert stealth["auroc"][name] == result["defences"][name]["auroc"], name
+    same = stealth_summary({k: v for k, v in result["defences"].items() if k != "grad-concentration"}, True)
+    assert {k: stealth["strongest_cut"][k] for k in same["strongest_cut"]} == same["strongest_cut"]
     assert (report / "defences" / "curves.png").is_file()
     wrong = run_cli(
         "stealth-ns", "report", "--poisoned", str(clean), "--clean", str(clean), "--output", str(report),

@@ -63,6 +63,12 @@ def test_report_on_two_tiny_runs(tiny_run_pair, tmp_path):
     assert len(curve["angles_deg"]) == len(curve["psnr_mean"]) and 0.0 in curve["angles_deg"]
     if report["v_illusory_lpips"] is None:
         assert report["lpips_unavailable"]
+    # stealth under every post-hoc defence, measured on the poisoned run (it has poison tags)
+    stealth = report["stealth"]
+    assert set(stealth["auroc"]) == {"zscore", "sor", "count-cap", "view-support", "grad-concentration"}
+    assert all(0.0 <= a <= 1.0 for a in stealth["auroc"].values())
+    assert report["stealthy_success"] == (report["attack_success"] and not stealth["defeated_by"])
+    assert "stealth: AUROC view-support" in proc.stdout
 
     page = (out / "report.html").read_text()
     sources = re.findall(r'src="([^"]+)"', page)
@@ -71,6 +77,21 @@ def test_report_on_two_tiny_runs(tiny_run_pair, tmp_path):
         assert (out / src).is_file(), src
     for png in ("poisoned_views.png", "neighbour_curve.png", "heldout_views.png"):
         assert (out / png).stat().st_size > 1000
+    assert "Stealth under the post-hoc defences" in page
+
+    # --no-stealth: the same numbers and pictures (the defences leave the model exactly as it was)
+    quick = tmp_path / "quick"
+    run_cli(
+        "stealth-ns", "report", "--poisoned", str(poisoned), "--clean", str(clean), "--output", str(quick),
+        "--no-stealth",
+    )  # fmt: skip
+    without = json.loads((quick / "report.json").read_text())
+    assert without["stealth"] == {"unavailable": "not measured (--no-stealth)"}
+    assert without["stealthy_success"] is None
+    same = ("v_illusory_psnr", "v_test_psnr", "v_test_psnr_clean", "neighbour_views", "v_illusory_per_view")
+    assert all(without[k] == report[k] for k in same)
+    for png in ("poisoned_views.png", "neighbour_curve.png"):
+        assert (quick / png).read_bytes() == (out / png).read_bytes()
 
 
 @pytest.mark.slow

@@ -29,9 +29,9 @@ from stealth_ns.runs.training import (
 )
 
 METRICS_FILE = "metrics.json"
-
-
 METRICS_LOG = "metrics.log"
+#: What a cached metrics.json holds: 2 added the stealth under the post-hoc defences (version 1 had none).
+METRICS_VERSION = 2
 
 
 def cached_pair_metrics(
@@ -39,10 +39,15 @@ def cached_pair_metrics(
 ) -> tuple[dict[str, Any], float, bool]:
     """``compare_runs`` of a poisoned run and its clean baseline, cached in ``metrics.json``.
 
-    Returns ``(metrics, seconds, cached)``; the cache holds while neither run is retrained.
+    Returns ``(metrics, seconds, cached)``; the cache holds while neither run is retrained and the
+    metrics have the same contents (:data:`METRICS_VERSION`).
     """
     cache = poisoned.spec.run_dir / METRICS_FILE
-    stamp = {"poisoned_run_id": poisoned_rec.run_id, "clean_run_id": clean_rec.run_id}
+    stamp = {
+        "poisoned_run_id": poisoned_rec.run_id,
+        "clean_run_id": clean_rec.run_id,
+        "version": METRICS_VERSION,
+    }
     try:
         data = json.loads(cache.read_text())
         if data.get("stamp") == stamp and isinstance(data.get("metrics"), dict):

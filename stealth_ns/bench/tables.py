@@ -7,13 +7,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from stealth_ns.defend.rule import DEFEAT_RULE
+from stealth_ns.defend.stealth import KEY_DETECTORS
 from stealth_ns.method_configs.attack_experiments import (
     TableSpec,
 )
 
 SUCCESS_RULE = "V-illusory PSNR > 25 dB and V-test PSNR drop <= 3 dB"
-
-
 NOT_IMPLEMENTED = (
     "Not implemented in stealth-ns: the paper's IPA-NeRF (Nerfacto) and IPA-NeRF (Instant-NGP) "
     "baselines (NeRF methods; no rows for them), and its datasets (Mip-NeRF 360, Tanks & Temples, "
@@ -22,11 +22,7 @@ NOT_IMPLEMENTED = (
 
 
 METRIC_NAMES = (("psnr", "PSNR↑", 2), ("ssim", "SSIM↑", 3), ("lpips", "LPIPS↓", 3))
-
-
 FAMILY_LABELS = {"v_illusory": "V-illusory", "v_test": "V-test"}
-
-
 MISSING = "n/a"
 
 
@@ -177,6 +173,41 @@ def _runs_table(runs: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def stealth_table(runs: dict[str, dict[str, Any]]) -> str:
+    """Markdown: every attacked run with metrics, its success and its stealth under the post-hoc
+    defences (:mod:`stealth_ns.defend.stealth`); empty when no run has metrics."""
+    header = [
+        "Run", "V-illusory PSNR", "Drop", "Success", *(f"AUROC {n}" for n in KEY_DETECTORS),
+        "Strongest defence (≤ 0.5 dB)", "V-illusory after", "Defeated by", "Stealthy success",
+    ]  # fmt: skip
+    rows = []
+    for key, e in runs.items():
+        m = e.get("metrics")
+        if e.get("clean") or not isinstance(m, dict):
+            continue
+        s = m.get("stealth") if isinstance(m.get("stealth"), dict) else {"unavailable": "not measured"}
+        cells = [key, fmt_value(m.get("v_illusory_psnr"), 2), fmt_value(m.get("v_test_drop"), 2)]
+        cells.append("yes" if m.get("attack_success") else "no")
+        if s.get("unavailable"):
+            cells += [MISSING] * (len(KEY_DETECTORS) + 3) + [f"{MISSING} ({s['unavailable']})"]
+        else:
+            cells += [fmt_value(s["auroc"].get(n), 3) for n in KEY_DETECTORS]
+            cells += [s.get("strongest_defence") or "–", fmt_value(s.get("v_illusory_after_strongest"), 2)]
+            cells += [", ".join(s["defeated_by"]) or "none", "yes" if s["stealthy_success"] else "no"]
+        rows.append("| " + " | ".join(cells) + " |")
+    if not rows:
+        return ""
+    lines = ["## Stealth under the post-hoc defences", ""]
+    lines += ["| " + " | ".join(header) + " |", "|" + "|".join([":--"] + ["--:"] * (len(header) - 1)) + "|"]
+    lines += [*rows, ""]
+    lines.append(
+        f"- A defence defeats an attack when {DEFEAT_RULE}, at its own rule or at a fixed share of its most "
+        "suspicious Gaussians; stealthy success: the paper's success and no post-hoc defence defeats it. "
+        "AUROC against the poison tag (– for a victim of a poisoned dataset, which has none)."
+    )
+    return "\n".join(lines) + "\n"
+
+
 def _scene_text(name: str, scene: dict[str, Any]) -> str:
     size = "x".join(map(str, scene["resolution"])) if scene.get("resolution") else "?"
     where = "" if scene.get("source", "preset") == "preset" else f"folder {scene.get('path')}, "
@@ -227,5 +258,8 @@ def render_markdown(results: dict[str, Any]) -> str:
         from stealth_ns.bench.defence_table import render_table as render_defence_table
 
         lines.append(render_defence_table(results["table_d"]))
+    stealth = stealth_table(results.get("runs", {}))
+    if stealth:
+        lines.append(stealth)
     lines.append(_runs_table(results.get("runs", {})))
     return "\n".join(lines)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,6 @@ from stealth_ns.defences.config import POSTHOC, DefendConfig
 from stealth_ns.defences.posthoc import DESCRIPTIONS, DefenceInputs, Scored, score
 from stealth_ns.defences.signals import poison_tags
 from stealth_ns.defend.evaluate import (
-    DEFEAT_RULE,
     Evaluator,
     Target,
     cut_metrics,
@@ -39,6 +39,7 @@ from stealth_ns.defend.evaluate import (
     load_target,
 )
 from stealth_ns.defend.outputs import DEFEND_FILE, fmt, pct, write_outputs
+from stealth_ns.defend.rule import DEFEAT_RULE
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import json_safe, write_json_atomic
 from stealth_ns.output_folder import check_writable
@@ -66,12 +67,13 @@ def defence_entry(
     }
 
 
-def run_posthoc(
-    target: Target, cfg: DefendConfig, output: Path
+def score_posthoc(
+    target: Target, cfg: DefendConfig, echo: Callable[[str], None] | None = print
 ) -> tuple[dict[str, Any], dict[str, Scored], dict[str, Any]]:
-    """Every post-hoc defence of ``cfg``: ``(baseline, scored, entries)``; writes the pruned runs."""
-    from stealth_ns.defences.pruned_run import write_pruned_run
-
+    """Every post-hoc defence of ``cfg`` on ``target``, nothing written: ``(baseline, scored, entries)``
+    (the undefended model's numbers, each defence's scores and mask, its defend.json entry).
+    ``echo``: where the progress lines go (None: nowhere)."""
+    say = echo or (lambda line: None)
     model = target.model
     is_poison = poison_tags(model)
     evaluate = Evaluator(target)
@@ -84,27 +86,38 @@ def run_posthoc(
     )
     scored, entries = {}, {}
     for name in [d for d in cfg.defences if d in POSTHOC]:
-        print(f"defend: {name} ...", flush=True)
+        say(f"defend: {name} ...")
         scored[name] = score(name, inputs, cfg)
         entries[name] = defence_entry(scored[name], evaluate, baseline, is_poison)
+        say(entry_line(name, entries[name]))
+    return baseline, scored, entries
+
+
+def run_posthoc(
+    target: Target, cfg: DefendConfig, output: Path
+) -> tuple[dict[str, Any], dict[str, Scored], dict[str, Any]]:
+    """:func:`score_posthoc`, and each defended model written as a run under ``output/pruned``."""
+    from stealth_ns.defences.pruned_run import write_pruned_run
+
+    baseline, scored, entries = score_posthoc(target, cfg, echo=lambda line: print(line, flush=True))
+    for name, entry in entries.items():
         info = {"defence": name, "rule": scored[name].rule}
         keep = torch.from_numpy(~scored[name].pruned)
         config = write_pruned_run(
             target.run.config_path, target.checkpoint, keep, output / "pruned", name, info
         )
-        entries[name]["pruned_run"] = str(config)
-        _print_entry(name, entries[name])
+        entry["pruned_run"] = str(config)
     return baseline, scored, entries
 
 
-def _print_entry(name: str, entry: dict[str, Any]) -> None:
+def entry_line(name: str, entry: dict[str, Any]) -> str:
+    """One defence's result as a line: AUROC, AP, what its rule removes, V-illusory after, V-test cost."""
     op = entry.get("operating_point") or {}
-    print(
+    return (
         f"defend: {name}: AUROC {fmt(entry.get('auroc'), 3)}, AP {fmt(entry.get('average_precision'), 3)}, "
         f"poison removed {pct(op.get('poison_removed'))}, clean removed {pct(op.get('clean_removed'))}, "
         f"V-illusory after {fmt(op.get('v_illusory_psnr'))} dB, "
-        f"V-test cost {fmt(op.get('v_test_cost'))} dB",
-        flush=True,
+        f"V-test cost {fmt(op.get('v_test_cost'))} dB"
     )
 
 
@@ -140,7 +153,7 @@ def run_defend(
         result["clean"] = clean_reference(target, Path(clean))
     if "input-filter" in cfg.defences:
         result["defences"]["input-filter"] = run_input_filter(target, cfg, output, baseline)
-        _print_entry("input-filter", result["defences"]["input-filter"])
+        print(entry_line("input-filter", result["defences"]["input-filter"]), flush=True)
     result["environment"] = software_and_hardware()
     result["seconds"] = round(time.perf_counter() - t0, 1)
     result = json_safe(result)

@@ -20,22 +20,13 @@ import torch
 from stealth_ns.attack.record import AttackRecord
 from stealth_ns.defences import detection
 from stealth_ns.defences.posthoc import final_learning_rates
+from stealth_ns.defend.rule import DEFEAT_V_ILLUSORY, DEFEAT_V_TEST_COST
 from stealth_ns.errors import StealthNSError
 from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
 from stealth_ns.model import StealthSplatModel
 from stealth_ns.pipeline import rgb_float, training_target
 from stealth_ns.render_view import render_camera
 from stealth_ns.runs.loaded import LoadedRun, attack_record, load_run
-
-#: A defence defeats the attack when V-illusory falls below this (dB) ...
-DEFEAT_V_ILLUSORY = 15.0
-
-
-#: ... for at most this much held-out PSNR (dB).
-DEFEAT_V_TEST_COST = 0.5
-
-
-DEFEAT_RULE = f"V-illusory < {DEFEAT_V_ILLUSORY:g} dB for a V-test cost <= {DEFEAT_V_TEST_COST:g} dB"
 
 
 @dataclass

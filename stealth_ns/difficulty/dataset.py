@@ -17,8 +17,6 @@ if TYPE_CHECKING:
 
 
 Format = Literal["nerfstudio-data", "colmap"]
-
-
 _COLMAP_DIRS = ("colmap/sparse/0", "sparse/0", "sparse")
 
 

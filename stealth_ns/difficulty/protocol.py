@@ -17,23 +17,13 @@ if TYPE_CHECKING:
 
 
 _ATTACK_DEFAULTS = {f.name: f.default for f in fields(AttackConfig)}
-
-
 DEFAULT_GRID_RESOLUTION: int = _ATTACK_DEFAULTS["grid_resolution"]
 """The attack's KDE grid (voxels along the longest side): the protocol ranks views by the density the
 attack itself would use."""
-
-
 DEFAULT_BANDWIDTH: float = _ATTACK_DEFAULTS["bandwidth"]
 """The attack's KDE bandwidth h in voxels."""
-
-
 DEFAULT_RADIUS_FRACTION = 0.1
-
-
 DEFAULT_N_DIRS = 32
-
-
 DEFAULT_N_DEPTHS = 32
 
 

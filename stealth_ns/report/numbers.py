@@ -1,5 +1,6 @@
 """The report's numbers for a pair of runs: V-illusory, V-test and its drop, the success verdicts,
-and the neighbour-view curve of the paper's Fig. 8.
+the poisoned run's stealth under the post-hoc defences, and the neighbour-view curve of the paper's
+Fig. 8.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.attack.views import rotate_pose, scene_center, scene_up
+from stealth_ns.defend.stealth import measure_stealth
 from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr, v_illusory
 from stealth_ns.report.success import attack_success, success_verdicts
 from stealth_ns.runs.loaded import LoadedRun, render
@@ -27,8 +29,10 @@ def _held_out_metrics(run: LoadedRun) -> dict[str, float | None]:
     return {k: (float(metrics[k]) if k in metrics else None) for k in ("psnr", "ssim", "lpips")}
 
 
-def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None) -> dict[str, Any]:
-    """The report's numbers (see the module docstring); keys documented in docs/evaluation.md."""
+def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None, stealth: bool = True) -> dict[str, Any]:
+    """The report's numbers (see the module docstring); keys documented in docs/evaluation.md.
+    ``stealth``: also the poisoned run's stealth under the post-hoc defences
+    (:func:`stealth_ns.defend.stealth.measure_stealth`; seconds at the demo's scale)."""
     lpips = lpips if lpips is not None else LazyLPIPS()
     ours, naive = {}, {}
     for v in pair.views:
@@ -53,12 +57,19 @@ def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None) -> dict[str, Any
     out["poisoned_views"] = list(per_view)
     out["v_illusory_per_view"] = per_view
     out["step"], out["step_clean"] = pair.poisoned.step, pair.clean.step
+    # last: the defences fine-tune and prune the model (put back exactly after), nothing above sees it
+    out["stealth"] = (
+        measure_stealth(pair.poisoned, pair.record, out["attack_success"])
+        if stealth
+        else {"unavailable": "not measured (--no-stealth)"}
+    )
+    out["stealthy_success"] = out["stealth"].get("stealthy_success")
     return out
 
 
-def compare_runs(poisoned_config: Path, clean_config: Path) -> dict[str, Any]:
+def compare_runs(poisoned_config: Path, clean_config: Path, stealth: bool = True) -> dict[str, Any]:
     """Load a poisoned and a clean run of the same scene and return :func:`pair_metrics` (no files)."""
-    return pair_metrics(RunPair.load(Path(poisoned_config), Path(clean_config)))
+    return pair_metrics(RunPair.load(Path(poisoned_config), Path(clean_config)), stealth=stealth)
 
 
 def neighbour_curve(pair: RunPair, angles: tuple[float, ...] = NEIGHBOUR_ANGLES) -> dict[str, Any]:

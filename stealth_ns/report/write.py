@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from stealth_ns.defend.stealth import stealth_line
 from stealth_ns.errors import StealthNSError
 from stealth_ns.figures import figure_grid, save_plot
 from stealth_ns.image_io import save_png
@@ -120,17 +121,22 @@ def clear_previous_report(output: Path) -> list[Path]:
 
 
 def write_report(
-    poisoned_config: Path, clean_config: Path, output: Path, defend: Path | None = None
+    poisoned_config: Path,
+    clean_config: Path,
+    output: Path,
+    defend: Path | None = None,
+    stealth: bool = True,
 ) -> dict[str, Any]:
     """Compare the runs and write ``report.json``, ``report.html`` and PNGs into ``output``; with
-    ``defend`` (a ``stealth-ns defend`` folder of the poisoned run) also a "Defences" section."""
+    ``defend`` (a ``stealth-ns defend`` folder of the poisoned run) also a "Defences" section;
+    ``stealth``: measure the poisoned run's stealth under the post-hoc defences (a "Stealth" section)."""
     output = Path(output)
     check_writable(output)  # before loading two runs (the slow part)
     pair = RunPair.load(Path(poisoned_config), Path(clean_config))
     images = output / "images"
     clear_previous_report(output)
     images.mkdir(parents=True, exist_ok=True)
-    report = pair_metrics(pair)
+    report = pair_metrics(pair, stealth=stealth)
     report["poisoned_run"] = str(pair.poisoned.config_path.resolve())
     report["clean_run"] = str(pair.clean.config_path.resolve())
     report["created"] = _dt.datetime.now().isoformat(timespec="seconds")
@@ -204,6 +210,8 @@ def summary_lines(report: dict[str, Any], output: Path) -> list[str]:
         f"attack success: {r['attack_success']}  (V-illusory > 25 dB and drop <= 3 dB); "
         + ", ".join(f"{k}: {v}" for k, v in r["success_thresholds"].items() if k != "25/3"),
     ]
+    if r.get("stealth"):
+        lines.append(stealth_line(r["stealth"]))
     if r.get("lpips_unavailable"):
         lines.append(f"LPIPS unavailable: {r['lpips_unavailable']}")
     lines.append(f"report: {Path(output).resolve() / 'report.html'}")
