@@ -68,7 +68,7 @@ def defence_entry(
 
 
 def score_posthoc(
-    target: Target, cfg: DefendConfig, echo: Callable[[str], None] | None = print
+    target: Target, cfg: DefendConfig, echo: Callable[[str], None] | None = None
 ) -> tuple[dict[str, Any], dict[str, Scored], dict[str, Any]]:
     """Every post-hoc defence of ``cfg`` on ``target``, nothing written: ``(baseline, scored, entries)``
     (the undefended model's numbers, each defence's scores and mask, its defend.json entry).
