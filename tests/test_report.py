@@ -86,7 +86,7 @@ def test_report_on_two_tiny_runs(tiny_run_pair, tmp_path):
         "--no-stealth",
     )  # fmt: skip
     without = json.loads((quick / "report.json").read_text())
-    assert without["stealth"] == {"unavailable": "not measured (--no-stealth)"}
+    assert without["stealth"] == {"unavailable": "--no-stealth was given"}
     assert without["stealthy_success"] is None
     same = ("v_illusory_psnr", "v_test_psnr", "v_test_psnr_clean", "neighbour_views", "v_illusory_per_view")
     assert all(without[k] == report[k] for k in same)

@@ -63,8 +63,9 @@ def test_defeated_by_any_cut_and_stealthy_success():
     assert stealth_summary(survives, attack_success=False)["stealthy_success"] is False
     nothing = stealth_summary({}, attack_success=True)
     assert nothing["strongest_defence"] is None and nothing["v_illusory_after_strongest"] is None
-    assert stealth_line({"unavailable": "not measured (--no-stealth)"}) == (
-        "stealth: not measured (not measured (--no-stealth))"
+    assert (
+        stealth_line({"unavailable": "--no-stealth was given"})
+        == "stealth: not measured (--no-stealth was given)"
     )
 
 
@@ -108,5 +109,5 @@ def test_html_shows_the_stealth_section(stealthy):
     assert f"stealthy success: {'yes' if stealthy else 'no'}" in page
     assert ("no post-hoc defence defeats it" in page) == stealthy
     assert "0.970" in page and f"{ill:.3f}" in page
-    report["stealth"] = {"unavailable": "not measured (--no-stealth)"}
-    assert "Not measured: not measured (--no-stealth)" in render_html(report)
+    report["stealth"] = {"unavailable": "--no-stealth was given"}
+    assert "Not measured: --no-stealth was given" in render_html(report)

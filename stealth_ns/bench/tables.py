@@ -185,7 +185,11 @@ def stealth_table(runs: dict[str, dict[str, Any]]) -> str:
         m = e.get("metrics")
         if e.get("clean") or not isinstance(m, dict):
             continue
-        s = m.get("stealth") if isinstance(m.get("stealth"), dict) else {"unavailable": "not measured"}
+        s = (
+            m.get("stealth")
+            if isinstance(m.get("stealth"), dict)
+            else {"unavailable": "metrics from before the stealth was measured"}
+        )
         cells = [key, fmt_value(m.get("v_illusory_psnr"), 2), fmt_value(m.get("v_test_drop"), 2)]
         cells.append("yes" if m.get("attack_success") else "no")
         if s.get("unavailable"):

@@ -48,7 +48,11 @@ def load_target(config_path: Path) -> Target:
     run = load_run(Path(config_path))
     if not isinstance(run.model, StealthSplatModel):
         raise StealthNSError(f"{config_path} is not a stealth-splat run (no poison tag to score against)")
-    record = attack_record(run, Path(config_path))
+    return target_of(run, attack_record(run, Path(config_path)))
+
+
+def target_of(run: LoadedRun, record: AttackRecord) -> Target:
+    """A loaded run under defence: its record, its final checkpoint and final learning rates."""
     return Target(run, record, run.checkpoint, final_learning_rates(run.config.optimizers))
 
 

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from stealth_ns.defend.rule import DEFEAT_V_TEST_COST, lowest_within_cost
 from stealth_ns.figures import figure_grid, save_plot
 from stealth_ns.runs.loaded import render
 
@@ -77,19 +78,12 @@ def render_table(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def best_cuts(result: dict[str, Any], max_cost: float = 0.5) -> dict[str, str]:
+def best_cuts(result: dict[str, Any], max_cost: float = DEFEAT_V_TEST_COST) -> dict[str, str]:
     """Per post-hoc defence, the sweep point with the lowest V-illusory at a V-test cost <= ``max_cost``."""
     out = {}
     for name, e in result["defences"].items():
-        ok = [
-            p
-            for p in e.get("curve", [])
-            if p["v_test_cost"] is not None
-            and p["v_test_cost"] <= max_cost
-            and p["v_illusory_psnr"] is not None
-        ]
-        if ok:
-            p = min(ok, key=lambda q: q["v_illusory_psnr"])
+        p = lowest_within_cost(e.get("curve", []), max_cost)
+        if p is not None:
             out[name] = (
                 f"prune {100 * p['fraction']:.1f}%: V-illusory {fmt(p['v_illusory_psnr'])} dB, "
                 f"V-test cost {fmt(p['v_test_cost'])} dB, poison removed {pct(p['poison_removed'])}"

@@ -17,7 +17,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from stealth_ns.defences.config import POSTHOC, DefendConfig
-from stealth_ns.defend.rule import DEFEAT_RULE, DEFEAT_V_ILLUSORY, DEFEAT_V_TEST_COST
+from stealth_ns.defend.rule import DEFEAT_RULE, DEFEAT_V_ILLUSORY, DEFEAT_V_TEST_COST, lowest_within_cost
 
 if TYPE_CHECKING:
     from stealth_ns.attack.record import AttackRecord
@@ -45,18 +45,11 @@ def strongest_cut(entry: dict[str, Any], max_cost: float = DEFEAT_V_TEST_COST) -
     """The cut of one defence with the lowest V-illusory among those costing at most ``max_cost`` dB of
     V-test: ``{"cut", "v_illusory_psnr", "v_test_cost", "poison_removed"}``; None when no cut qualifies
     (or none was measured)."""
-    ok = [
-        (label, p)
-        for label, p in cuts(entry)
-        if p.get("v_test_cost") is not None
-        and p["v_test_cost"] <= max_cost
-        and p.get("v_illusory_psnr") is not None
-    ]
-    if not ok:
+    p = lowest_within_cost(({**point, "cut": label} for label, point in cuts(entry)), max_cost)
+    if p is None:
         return None
-    label, p = min(ok, key=lambda item: item[1]["v_illusory_psnr"])
     return {
-        "cut": label,
+        "cut": p["cut"],
         "v_illusory_psnr": p["v_illusory_psnr"],
         "v_test_cost": p["v_test_cost"],
         "poison_removed": p.get("poison_removed"),
@@ -117,9 +110,8 @@ def measure_stealth(
     post-hoc defences of ``cfg`` (default: every post-hoc defence with ``stealth-ns defend``'s
     defaults), with each defence's scoring time; the model is left as it was. A model other than a
     stealth-splat one (which the defences' signals need) gives ``{"unavailable": reason}``."""
-    from stealth_ns.defences.posthoc import final_learning_rates
     from stealth_ns.defend.command import score_posthoc
-    from stealth_ns.defend.evaluate import Target
+    from stealth_ns.defend.evaluate import target_of
     from stealth_ns.model import StealthSplatModel
 
     if not isinstance(run.model, StealthSplatModel):
@@ -127,8 +119,7 @@ def measure_stealth(
             "unavailable": f"the post-hoc defences need a stealth-splat model, not {type(run.model).__name__}"
         }
     cfg = cfg or DefendConfig(defences=POSTHOC)
-    target = Target(run, record, run.checkpoint, final_learning_rates(run.config.optimizers))
-    _, _, entries = score_posthoc(target, cfg, echo=None)
+    _, _, entries = score_posthoc(target_of(run, record), cfg, echo=None)
     summary = stealth_summary(entries, attack_success)
     summary["score_seconds"] = {name: e.get("score_seconds") for name, e in entries.items()}
     return summary

@@ -61,7 +61,7 @@ def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None, stealth: bool = 
     out["stealth"] = (
         measure_stealth(pair.poisoned, pair.record, out["attack_success"])
         if stealth
-        else {"unavailable": "not measured (--no-stealth)"}
+        else {"unavailable": "--no-stealth was given"}
     )
     out["stealthy_success"] = out["stealth"].get("stealthy_success")
     return out
