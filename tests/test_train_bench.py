@@ -104,3 +104,20 @@ def test_run_command_reports_the_childs_peak_rss(tmp_path):
     assert "done" in (tmp_path / "log").read_text()
     with pytest.raises(StealthNSError, match="exit 3"):
         run_command([sys.executable, "-c", "raise SystemExit(3)"], tmp_path / "log2", stream=False)
+
+
+def test_event_writers_are_closed_and_forgotten(monkeypatch, tmp_path):
+    """nerfstudio never closes its TensorBoard writers; bench train does, before it removes its
+    temporary run folder (their flush thread would otherwise write into it while it is removed)."""
+    import nerfstudio.engine.trainer  # noqa: F401 - writer alone is a circular import in nerfstudio 1.1.5
+    from nerfstudio.utils import writer
+    from torch.utils.tensorboard import SummaryWriter
+
+    from stealth_ns.bench.train_step import _close_event_writers
+
+    tb = writer.TensorboardWriter(log_dir=tmp_path / "run")
+    tb.write_scalar("x", 1.0, 0)
+    monkeypatch.setattr(writer, "EVENT_WRITERS", [tb, object()])  # and a writer with no TensorBoard file
+    _close_event_writers()
+    assert writer.EVENT_WRITERS == []
+    assert isinstance(tb.tb_writer, SummaryWriter) and tb.tb_writer.all_writers is None  # closed

@@ -226,6 +226,19 @@ def _bench_config(data: Path, output: Path, method: str, seed: int, iterations: 
     return config
 
 
+def _close_event_writers() -> None:
+    """Close nerfstudio's TensorBoard writers (module-global, never closed by the trainer) and forget
+    them. Their background thread flushes the event file after training returns: removing the run
+    folder under it failed once in CI with "Directory not empty" (the event file reappeared)."""
+    from nerfstudio.utils import writer
+
+    for event_writer in writer.EVENT_WRITERS:
+        summary = getattr(event_writer, "tb_writer", None)
+        if summary is not None:
+            summary.close()
+    writer.EVENT_WRITERS.clear()
+
+
 def run_train_benchmark(
     data: Path | None = None,
     method: str = "stealth-splat-lite",
@@ -271,6 +284,7 @@ def run_train_benchmark(
                 trainer.train()
             finally:
                 TIMER.active = False
+                _close_event_writers()  # before the temporary folder is removed under them
         model = trainer.pipeline.model
         backend = model.rasterizer_backend
     timed = TIMER.steps[:steps]
