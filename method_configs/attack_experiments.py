@@ -226,10 +226,46 @@ def _kde_runs(scene: str) -> list[RunSpec]:
 
 _KIND_RUNS = {"uniform": _uniform_runs, "kde": _kde_runs}
 
+#: Table 7's rows beyond the default attack: the stealth-aware variants, then the attack's other
+#: knobs one at a time (``docs/stealth.md``): (run name, options added to :func:`attack_args`, label).
+#: A uniform scene shows Tables 3 and 5's runs for the settings they share (:data:`STEALTH_SHARED`).
+STEALTH_SETTINGS: tuple[tuple[str, tuple[str, ...], str], ...] = (
+    ("st-support-3", (f"{ATTACK}support-views", "3"), "support views 3 (stealth-aware)"),
+    ("st-support-4", (f"{ATTACK}support-views", "4"), "support views 4 (stealth-aware)"),
+    ("st-support-5", (f"{ATTACK}support-views", "5"), "support views 5 (stealth-aware)"),
+    ("st-support-6", (f"{ATTACK}support-views", "6"), "support views 6 (stealth-aware)"),
+    ("st-surface", (f"{ATTACK}placement", "surface"), "placement surface (stealth-aware)"),
+    ("st-tmin-0.1", (f"{ATTACK}t-min-fraction", "0.1"), "t-min fraction 0.1 (default 0.01)"),
+    ("st-scale-2", (f"{ATTACK}poison-scale", "2"), "poison scale 2 px (default 0.5)"),
+    ("st-opacity-0.5", (f"{ATTACK}poison-opacity", "0.5"), "poison opacity 0.5 (default 0.1)"),
+    ("st-inject-warmup", (f"{ATTACK}injection-step", "None"), "injection at the end of warm-up (default 0)"),
+    ("st-sigma-30", (f"{ATTACK}noise-sigma0", "30"), "noise sigma0 30 (default 100)"),
+    ("st-views-2", (f"{ATTACK}multi-view", "2"), "2 poisoned views (default 1)"),
+)
+STEALTH_SHARED: dict[str, str] = {"st-sigma-30": _noise_run(30.0, "linear"), "st-views-2": "views-2"}
+
+
+def _stealth_runs(scene: str) -> list[RunSpec]:
+    """Table 7's runs of a scene (those a uniform scene shares with Tables 3 and 5 excepted)."""
+    uniform = scene_kind(scene) == "uniform"
+    view: ViewChoice = "median-index" if uniform else "median"
+    return [
+        RunSpec(scene, name, attack_args() + extra, view=view, label=label)
+        for name, extra, label in STEALTH_SETTINGS
+        if not (uniform and name in STEALTH_SHARED)
+    ]
+
 
 def scene_runs(scene: str) -> tuple[RunSpec, ...]:
     """Every run of ``scene`` (declared or a dataset folder), by its kind; the clean baseline first."""
-    return tuple(_KIND_RUNS[scene_kind(scene)](scene))
+    return tuple(_KIND_RUNS[scene_kind(scene)](scene) + _stealth_runs(scene))
+
+
+def stealth_run(scene: str, setting: str) -> str:
+    """Table 7's run of ``scene`` for ``setting`` (a :data:`STEALTH_SETTINGS` name, or ``default``)."""
+    if setting == "default":
+        return single_view_run(scene)
+    return STEALTH_SHARED.get(setting, setting) if scene_kind(scene) == "uniform" else setting
 
 
 #: Every run of the declared scenes, clean baselines first within each scene.
@@ -477,6 +513,51 @@ TABLES: tuple[TableSpec, ...] = (
         ),
     ),
 )
+
+
+_STEALTH_NOTES = (
+    "How each run hides is in 'Stealth under the post-hoc defences' below; docs/stealth.md reads "
+    "the two tables together. Poisoned view: as in Table 1, whose in-loop row is the first here.",
+)
+
+
+def _stealth_table(number: int, title: str, settings: tuple[str, ...], note: str) -> TableSpec:
+    """Table 7 or 8: the default attack's row, then one row per setting, on Table 1's scenes."""
+    labels = {name: label for name, _, label in STEALTH_SETTINGS}
+    return TableSpec(
+        number=number,
+        title=title,
+        key_header=("Attack",),
+        groups=tuple(Group(s) for s in SCENES),
+        rows=(
+            Row(("default (view-aware, 1 view)",), tuple(stealth_run(s, "default") for s in SCENES)),
+            *(Row((labels[name],), tuple(stealth_run(s, name) for s in SCENES)) for name in settings),
+        ),
+        asr=True,
+        notes=(note, *_STEALTH_NOTES),
+        template="fox",
+    )
+
+
+TABLES += (
+    _stealth_table(
+        7,
+        "Stealth-aware variants (not in the paper)",
+        ("st-support-3", "st-support-4", "st-support-5", "st-support-6", "st-surface"),
+        "Variants of the attack designed to hide from the concentration detectors (docs/stealth.md): "
+        "support views (--pipeline.attack.support-views K) and the surface placement.",
+    ),
+    _stealth_table(
+        8,
+        "The attack's knobs, one at a time (not in the paper)",
+        tuple(name for name, _, _ in STEALTH_SETTINGS if not name.startswith(("st-support", "st-surface"))),
+        "Each row changes one setting of the default attack: the frontier of what exists.",
+    ),
+)
+
+
+#: The paper's tables (``bench attack``'s default); 7 and 8 are this project's stealth tables.
+PAPER_TABLES: tuple[int, ...] = (1, 2, 3, 4, 5, 6)
 
 
 def get_table(number: int) -> TableSpec:

@@ -32,15 +32,16 @@ from stealth_ns.attack.illusion import (
     load_illusion,
     place_illusion,
 )
-from stealth_ns.attack.injection import PoisonPlacement, injection_entry, place_poison
+from stealth_ns.attack.injection import CAMERA_PLACEMENTS, PoisonPlacement, injection_entry, place_poison
 from stealth_ns.attack.record import (
     INJECTION_FILES,
     AttackRecord,
     PoisonView,
     write_injection_files,
 )
+from stealth_ns.attack.support import render_poison, support_target
 from stealth_ns.attack.validation import validate_attack_config
-from stealth_ns.attack.views import median_view, multi_view_indices, resolve_views
+from stealth_ns.attack.views import median_view, multi_view_indices, nearest_views, resolve_views
 from stealth_ns.attack.visibility import CameraDepths
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager, dataset_image_names
 from stealth_ns.errors import StealthNSError, fail
@@ -197,6 +198,7 @@ class StealthPipeline(VanillaPipeline):
                 fail(err)
         super().__init__(config, device, *args, **kwargs)
         self.poison_views: list[PoisonView] = []
+        self.support_views: dict[int, list[int]] = {}  # poisoned view -> its support views (train indices)
         self.attack_dir: Path | None = None
         self.record: AttackRecord | None = None  # set when training starts (or resumes)
         self._restored_record: dict[str, Any] | None = None  # attack.json content, from a loaded checkpoint
@@ -222,6 +224,13 @@ class StealthPipeline(VanillaPipeline):
             fail(err)
         if not any(bool(v.mask.any()) for v in self.poison_views):
             fail("the illusion mask is empty in every poisoned view")
+        poisoned = [v.index for v in self.poison_views]
+        c2w = self.datamanager.train_dataset.cameras.camera_to_worlds
+        try:
+            k = cfg.support_views
+            self.support_views = {i: nearest_views(c2w, i, k, exclude=poisoned) for i in poisoned if k}
+        except StealthNSError as err:
+            fail(err)
 
     # ------------------------------------------------------------------ training set-up
     @property
@@ -273,6 +282,11 @@ class StealthPipeline(VanillaPipeline):
                 f"--pipeline.attack.injection-step must be None or a step in [0, {max_steps}) "
                 f"(the run's --max-num-iterations), got {self.injection_step}{given}: "
                 "no poison Gaussian would be injected"
+            )
+        if restored is not None and cfg.support_views:
+            fail(
+                "resuming a run of --pipeline.attack.support-views is not supported (its support views' "
+                "images are rendered at the injection): train it again"
             )
         targets = {}
         if cfg.gt_replacement:
@@ -341,11 +355,14 @@ class StealthPipeline(VanillaPipeline):
             alphas.append(out["accumulation"][..., 0].float().cpu())
         return depths, alphas
 
-    def innocent_cameras(self) -> CameraDepths:
-        """The training views that are not poisoned, with the current model's depth and opacity."""
-        poisoned = {v.index for v in self.poison_views}
+    @property
+    def support_indices(self) -> list[int]:
+        """Every poisoned view's support views (``support_views``), train indices in order."""
+        return sorted({i for views in self.support_views.values() for i in views})
+
+    def cameras_with_depth(self, indices: list[int]) -> CameraDepths:
+        """Training views ``indices`` with the current model's rendered depth and opacity."""
         cameras = self.datamanager.train_dataset.cameras
-        indices = [i for i in range(len(cameras)) if i not in poisoned]
         depths, alphas = self.render_depths(indices)
         chosen = cameras[torch.tensor(indices, dtype=torch.long)]
         return CameraDepths(
@@ -355,18 +372,56 @@ class StealthPipeline(VanillaPipeline):
             alphas=alphas,
         )
 
+    def innocent_cameras(self) -> CameraDepths:
+        """The training views that are neither poisoned nor support views, with their depth and opacity."""
+        shown = {v.index for v in self.poison_views} | set(self.support_indices)
+        n = len(self.datamanager.train_dataset.cameras)
+        return self.cameras_with_depth([i for i in range(n) if i not in shown])
+
     @torch.no_grad()
     def poison_placement(self) -> PoisonPlacement:
         """Where the density-guided component would put poison Gaussians in the current model (one per
         illusion pixel; nothing is appended). Scene units, nerfstudio's rescaled frame."""
         cfg = self.config.attack
         depths, alphas = self.render_depths([v.index for v in self.poison_views])
-        innocent = self.innocent_cameras() if cfg.placement == "view-aware" else None
+        innocent = self.innocent_cameras() if cfg.placement in CAMERA_PLACEMENTS else None
+        supports = None
+        if self.support_views:
+            supports = [self.cameras_with_depth(self.support_views[v.index]) for v in self.poison_views]
         means = self.model.means.detach().cpu().numpy()
         opacities = torch.sigmoid(self.model.opacities.detach()).squeeze(-1).cpu().numpy()
         return place_poison(
-            means, opacities, self.poison_views, depths, alphas, cfg, innocent, near_plane=NEAR_PLANE
+            means,
+            opacities,
+            self.poison_views,
+            depths,
+            alphas,
+            cfg,
+            innocent,
+            near_plane=NEAR_PLANE,
+            supports=supports,
         )
+
+    def support_targets(self, placement: PoisonPlacement) -> dict[int, tuple[torch.Tensor, torch.Tensor]]:
+        """Each support view's training image (float [H, W, 3]) and where the poison covers it ([H, W]
+        bool): the placed poison, as injected and drawn opaque, over its clean image
+        (:mod:`stealth_ns.attack.support`)."""
+        cameras = self.datamanager.train_dataset.cameras
+        targets = {}
+        for index in self.support_indices:
+            cam = cameras[index : index + 1]
+            rgb, alpha = render_poison(
+                placement.means,
+                placement.colors,
+                placement.scales,
+                viewmat_from_c2w(cam.camera_to_worlds.float())[0],
+                cam.get_intrinsics_matrices().float()[0],
+                int(cam.width),
+                int(cam.height),
+            )
+            clean = rgb_float(self.datamanager.cached_train[index]["image"])
+            targets[index] = (support_target(clean, rgb, alpha), alpha > 0.5)
+        return targets
 
     @torch.no_grad()
     def inject_poison(self, step: int) -> PoisonPlacement:
@@ -383,9 +438,18 @@ class StealthPipeline(VanillaPipeline):
             )
         n_before = model.num_points
         model.append_gaussians(placement.means, placement.colors, placement.scales, cfg.poison_opacity)
+        support = self.support_targets(placement)
+        if support:  # the support views show the poison from now on, noise-free like the poisoned views
+            dm = self.datamanager
+            cached = {
+                i: cached_format(t, dm.cached_train[i]["image"], covered)
+                for i, (t, covered) in support.items()
+            }
+            dm.set_poison({**dm.poison_targets, **cached}, dm.noise)
         placement.timings["total_s"] = time.perf_counter() - t0
         assert self.record is not None
-        self.record.injection = injection_entry(placement, step, n_before)
+        self.record.injection = injection_entry(placement, step, n_before, self.support_view_names())
+        self.record.support_targets = {i: target for i, (target, _) in support.items()}
         self._write_injection_artifacts(placement)
         CONSOLE.log(
             f"stealth-ns: injected {n_new} poison Gaussians at step {step} "
@@ -468,4 +532,9 @@ class StealthPipeline(VanillaPipeline):
         write_injection_files(
             self.attack_dir, placement.means, placement.colors, placement.grid, placement.kde
         )
-        self._write_record()
+        self._write_record(views=bool(self.record and self.record.support_targets))
+
+    def support_view_names(self) -> dict[str, list[str]]:
+        """Each poisoned view's support views (``support_views``), by image name."""
+        names = self.datamanager.train_image_names
+        return {v.name: [names[i] for i in self.support_views.get(v.index, [])] for v in self.poison_views}

@@ -31,6 +31,7 @@ BAD_VALUES: dict[str, list] = {
     "illusion_scale": [0.0, -0.4, NAN, INF, 3.0],
     "views": [("",), (-1,)],
     "multi_view": [0, 5, -1, 2.0],
+    "support_views": [-1, 9, 1.5, "3"],
     "gt_replacement": ["no"],
     "density_guided": [0],
     "view_noise": [None],

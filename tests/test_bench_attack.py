@@ -169,7 +169,7 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
         "give --scenes fox=PATH to use it from elsewhere)"
     ]
     keys = [p.key for p in plan.runs]
-    orbit_runs = [r for r in RUNS if r.scene == "orbit"]
+    orbit_runs = [r for r in RUNS if r.scene == "orbit" and not r.name.startswith("st-")]  # the paper's
     # orbit: 17 in-loop runs + data-only, ipa, ipa-views-2/3/4; a KDE scene: 4 + ipa-easy/median/hard,
     # data-only-median
     assert len(keys) == len(set(keys)) == 38 == len(orbit_runs) + 2 * 8
@@ -189,7 +189,8 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     assert all(c.parent.parent == tmp_path / "poisoned" for c in copies)
     # one run per distinct setting: no two presets of a scene train the same thing
     settings = {(r.scene, r.args, r.view, r.poisoning, r.poison_args) for r in RUNS}
-    assert len(settings) == len(RUNS) == 46  # orbit 22, forward / facing / fox 8 each
+    # orbit 22 + 9 of the stealth tables (2 more are Tables 3 and 5's), forward / facing / fox 8 + 11 each
+    assert len(settings) == len(RUNS) == 88
     easy = plan.get("forward/easy")
     assert "<EASY view of the KDE protocol>" in easy.spec.extra
     assert plan.get("forward/ipa-easy").view == "<EASY view of the KDE protocol>"
@@ -478,7 +479,7 @@ def test_table_rendering_from_fake_results():
 
 def test_table_specs_are_consistent():
     names = {(r.scene, r.name) for r in RUNS}
-    assert [t.number for t in TABLES] == [1, 2, 3, 4, 5, 6]
+    assert [t.number for t in TABLES] == [1, 2, 3, 4, 5, 6, 7, 8]
     by_key = {(r.scene, r.name): r for r in RUNS}
     method_rows: list[tuple[int, tuple[str, ...]]] = []
     for table in TABLES:
@@ -509,13 +510,25 @@ def test_table_specs_are_consistent():
             assert by_key[scene, f"ipa-{level}"].view == level == by_key[scene, level].view
         assert by_key[scene, "data-only-median"].view == "median"
     assert get_table(6).run_keys() == ["orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"]
+    # the stealth tables: Table 1's in-loop run first, then one run per setting, the poisoned view of
+    # Table 1 (the KDE Median view); a uniform scene reuses Tables 3 and 5's runs
+    for number in (7, 8):
+        table = get_table(number)
+        assert table.rows[0].runs == get_table(1).rows[-1].runs
+        for row in table.rows[1:]:
+            for g, name in zip(table.groups, row.runs, strict=True):
+                run = by_key[g.scene, name]
+                assert run.view == ("median-index" if g.scene == "orbit" else "median") and not run.poisoning
+    support = [f"orbit/st-support-{k}" for k in (3, 4, 5, 6)]
+    assert get_table(7).run_keys(("orbit",)) == ["orbit/full", *support, "orbit/st-surface"]
+    assert "orbit/views-2" in get_table(8).run_keys() and "fox/st-views-2" in get_table(8).run_keys()
 
 
 # ------------------------------------------------------------------------------ bad input
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"tables": ["7"]}, "unknown table '7'"),
+        ({"tables": ["9"]}, "unknown table '9'"),
         ({"tables": ["six"]}, "unknown table 'six'"),
         ({"scenes": ["garden"]}, "unknown scene 'garden'"),
         ({"tables": ["2"], "scenes": ["orbit"]}, "nothing to run: Table 2 skipped"),

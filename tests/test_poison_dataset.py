@@ -123,6 +123,27 @@ def test_only_the_poisoned_view_changes_and_it_is_the_target(poisoned, scene):
             assert (scene / rel).read_bytes() == (out / rel).read_bytes(), rel
 
 
+def test_support_views_data_only_their_images_show_the_poison(scene, tmp_path):
+    """--support-views 2: the poisoned view's 2 nearest training views are written as the poison's
+    render over their image (recorded, and read back for the defender); the other views are untouched."""
+    out = tmp_path / "support"
+    poison_dataset(scene, out, dataclasses.replace(DATA_ONLY, support_views=2))
+    record = AttackRecord.read(out / "attack")
+    (view,) = record.views
+    train, evals = _split(scene)
+    support = record.injection.support_views[view.name]
+    assert len(support) == 2 and view.name not in support
+    assert sorted(record.poisoned_dataset["images_written"]) == sorted([view.name, *support])
+    assert sorted(record.support_targets) == sorted(train.index(name) for name in support)
+    for name in support:
+        written = read_image(out / name, "support view")
+        np.testing.assert_array_equal(written, to_uint8(record.support_targets[train.index(name)]))
+        assert (scene / name).read_bytes() != (out / name).read_bytes(), f"{name} does not show the poison"
+    for rel in train + evals:
+        if rel not in (view.name, *support):
+            assert (scene / rel).read_bytes() == (out / rel).read_bytes(), rel
+
+
 def test_seed_cloud_gains_exactly_the_poison_points(poisoned, scene):
     out, _, _ = poisoned
     record = AttackRecord.read(out / "attack")

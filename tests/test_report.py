@@ -10,6 +10,7 @@ import pytest
 from conftest import run_cli
 
 from stealth_ns.attack.views import rotate_pose
+from stealth_ns.defences.config import POSTHOC
 from stealth_ns.report.success import attack_success, success_verdicts
 
 REQUIRED_KEYS = {
@@ -65,7 +66,7 @@ def test_report_on_two_tiny_runs(tiny_run_pair, tmp_path):
         assert report["lpips_unavailable"]
     # stealth under every post-hoc defence, measured on the poisoned run (it has poison tags)
     stealth = report["stealth"]
-    assert set(stealth["auroc"]) == {"zscore", "sor", "count-cap", "view-support", "grad-concentration"}
+    assert set(stealth["auroc"]) == set(POSTHOC) and "camera-proximity" in POSTHOC
     assert all(0.0 <= a <= 1.0 for a in stealth["auroc"].values())
     assert report["stealthy_success"] == (report["attack_success"] and not stealth["defeated_by"])
     assert "stealth: AUROC view-support" in proc.stdout

@@ -111,3 +111,29 @@ def test_html_shows_the_stealth_section(stealthy):
     assert "0.970" in page and f"{ill:.3f}" in page
     report["stealth"] = {"unavailable": "--no-stealth was given"}
     assert "Not measured: --no-stealth was given" in render_html(report)
+
+
+def test_the_stealth_plot_shows_every_measured_attacked_run(tmp_path):
+    from stealth_ns.bench.stealth_plot import plot_stealth, stealth_points
+
+    def run(auroc_vs, auroc_gc, ill, stealthy, scene="orbit", **extra):
+        stealth = {"auroc": {"view-support": auroc_vs, "grad-concentration": auroc_gc, "zscore": 0.99}}
+        metrics = {"v_illusory_psnr": ill, "stealthy_success": stealthy, "stealth": stealth}
+        return {"scene": scene, "metrics": metrics, **extra}
+
+    runs = {
+        "orbit/clean": {"clean": True, "scene": "orbit"},
+        "orbit/full": run(0.85, 0.96, 30.2, False),
+        "orbit/st-support-6": run(0.48, 0.61, 26.7, True),
+        "fox/victim": run(None, None, 30.0, False, scene="fox"),  # a victim of a poisoned dataset: no tag
+        "fox/broken": {"scene": "fox", "metrics": {"stealth": {"unavailable": "not measured"}}},
+    }
+    points = stealth_points(runs)
+    assert [p["key"] for p in points] == ["orbit/full", "orbit/st-support-6", "fox/victim"]
+    assert (
+        points[0]["auroc"] == 0.96 and points[1]["stealthy"] and points[2]["auroc"] is None
+    )  # zscore ignored
+    assert plot_stealth(runs, tmp_path / "stealth.png") == tmp_path / "stealth.png"
+    assert (tmp_path / "stealth.png").stat().st_size > 1000
+    assert plot_stealth({"orbit/clean": runs["orbit/clean"]}, tmp_path / "none.png") is None
+    assert not (tmp_path / "none.png").exists()

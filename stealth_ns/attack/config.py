@@ -57,6 +57,12 @@ class AttackConfig:
     view_noise: bool = True
     """View-consistency disruption: Gaussian noise with a decaying sigma on innocent views."""
 
+    support_views: int = 0
+    """K training views nearest each poisoned view show the illusion too (0 = the paper's attack): a
+    stealth-aware variant (``stealth_ns.attack.support``, ``docs/stealth.md``). Their images become
+    renders of the poison over their own, and the poison goes where they see it, so its support
+    spreads over K + 1 views. Needs the density-guided component and GT replacement."""
+
     # --- density and KDE (§3.3) --------------------------------------------------------------
     voxel_size: float | None = None
     """Voxel edge in scene units; None = the AABB's longest side / ``grid_resolution``."""
@@ -66,7 +72,7 @@ class AttackConfig:
     """KDE bandwidth h in voxels (paper's default 7.5; its ablation varies 0.1..10)."""
     outlier_removal: bool = True
     """Statistical outlier removal (20 neighbours, 2 std) before the AABB, as the authors did."""
-    placement: Literal["view-aware", "kde"] = "view-aware"
+    placement: Literal["view-aware", "kde", "surface"] = "view-aware"
     """Where on its illusion ray a poison Gaussian goes. ``kde``: the paper's arg-min of the KDE
     density (eq. 4) from ``t_min_fraction`` on. ``view-aware``: the sample seen by the fewest
     innocent training cameras (inside their image and not behind the surface their render
@@ -76,7 +82,11 @@ class AttackConfig:
     iterations): ``kde`` keeps 0 of 815 poison Gaussians on the forward-facing ``facing`` scene
     (9.75 dB); ``view-aware`` succeeds on ``orbit`` (30.01 dB), ``facing`` (44.95), the real
     ``fox`` capture (38.66) and ``forward``'s Easy and Median views (36.56, 27.35); its Hard
-    view fails (8.22)."""
+    view fails (8.22).
+
+    ``surface`` (a stealth-aware variant, ``docs/stealth.md``): on the surface the pixel shows,
+    seen by every innocent camera that sees that surface, the illusion carried by view-dependent
+    colour (SH) alone."""
     visibility_margin: float = 0.05
     """``view-aware``: a point up to this fraction of the rendered depth behind a camera's surface
     still counts as seen by that camera."""

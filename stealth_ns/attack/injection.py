@@ -6,14 +6,17 @@ up to the rendered depth and never within two near planes of the camera: the lea
 from ``t_min`` on (``placement="kde"``, the paper), or (``placement="view-aware"``,
 :mod:`stealth_ns.attack.visibility`) the one seen by the fewest innocent training cameras, the
 density breaking ties; with ``t_min_fraction`` above ``unseen_t_min_fraction``, points no
-innocent camera sees are searched from the nearer bound. The model appends them
-(``StealthSplatModel.append_gaussians``).
+innocent camera sees are searched from the nearer bound. Two stealth-aware variants
+(docs/stealth.md): with support views (``support_views``) the view-aware search prefers the
+samples the poisoned view's neighbours see; ``placement="surface"`` puts each poison Gaussian on
+the surface its pixel shows. The model appends them (``StealthSplatModel.append_gaussians``).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -23,7 +26,7 @@ from torch import Tensor
 
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid, gaussian_kde_grid, voxel_density
-from stealth_ns.attack.ray_search import min_density_points, pixel_rays, zdepth_to_ray_t
+from stealth_ns.attack.ray_search import RaySearchResult, min_density_points, pixel_rays, zdepth_to_ray_t
 from stealth_ns.attack.record import Injection, PoisonView
 from stealth_ns.attack.visibility import SURFACE_ALPHA, CameraDepths, count_seeing_cameras
 
@@ -47,6 +50,8 @@ class PoisonPlacement:
     unseen_fraction: dict[str, float] = field(default_factory=dict)
     # view name -> mean number of innocent cameras that see a placed poison Gaussian (view-aware)
     seen_by: dict[str, float] = field(default_factory=dict)
+    # support views: view name -> mean number of its support views that see a placed poison Gaussian
+    support_seen: dict[str, float] = field(default_factory=dict)
     grid: DensityGrid | None = None
     kde: DensityGrid | None = None
     timings: dict[str, float] = field(default_factory=dict)
@@ -107,6 +112,46 @@ def _illusion_rays(
     return rows, cols, origins, dirs, cos, t_max
 
 
+#: Placements that count the innocent cameras seeing a point (and so need their rendered depth).
+CAMERA_PLACEMENTS = ("view-aware", "surface")
+#: ``surface``: how far in front of the rendered surface a poison Gaussian sits, as a fraction of
+#: its depth (within ``visibility_margin``, so every camera that sees the surface sees it).
+SURFACE_OFFSET = 0.01
+
+
+def _seen_penalty(cfg: AttackConfig, innocent: CameraDepths | None, support: CameraDepths | None = None):
+    """The ray search's per-sample cost (None: the KDE density alone, ``kde`` and ``surface``).
+
+    ``view-aware``: the number of innocent cameras that see the sample, plus, with support views
+    (``support_views``), the number of support cameras that do not: the sample that every support
+    camera and the fewest others see comes first."""
+    cameras = [c for c in (innocent, support) if c is not None and len(c)]
+    if cfg.placement != "view-aware" or not cameras:
+        return None
+
+    def penalty(pts: Tensor) -> Tensor:
+        cost = torch.zeros(pts.shape[:-1], dtype=torch.int32, device=pts.device)
+        if innocent is not None and len(innocent):
+            cost += count_seeing_cameras(pts, innocent, margin=cfg.visibility_margin)
+        if support is not None and len(support):
+            cost += len(support) - count_seeing_cameras(pts, support, margin=cfg.visibility_margin)
+        return cost
+
+    return penalty
+
+
+def on_surface(origins: Tensor, dirs: Tensor, t_max: Tensor, t_min: Tensor) -> RaySearchResult:
+    """``placement="surface"``: each ray's point just in front of its far bound ``t_max`` (the
+    surface its pixel shows; ``[M]``, scene units), :data:`SURFACE_OFFSET` of the depth nearer,
+    as a :class:`RaySearchResult` (density and penalty 0; invalid where below ``t_min``)."""
+    t = t_max * (1.0 - SURFACE_OFFSET)
+    valid = torch.isfinite(t) & (t >= t_min)
+    nan = torch.full_like(t, float("nan"))
+    t = torch.where(valid, t, nan)
+    zero = torch.where(valid, torch.zeros_like(t), nan)
+    return RaySearchResult(origins + t[:, None] * dirs, t, zero, valid, zero)
+
+
 def median_scene_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
     """Median rendered z-depth (scene units) of the pixels that show a surface (``fallback``,
     e.g. the distance to the density grid's centre, when none does)."""
@@ -123,6 +168,7 @@ def place_poison(
     cfg: AttackConfig,
     innocent: CameraDepths | None = None,
     near_plane: float = 0.0,
+    supports: Sequence[CameraDepths] | None = None,
 ) -> PoisonPlacement:
     """Poison Gaussians for every illusion pixel of every poisoned view.
 
@@ -136,15 +182,11 @@ def place_poison(
             ``placement="view-aware"``.
         near_plane: the rasterizer's near plane (camera-space z, scene units); every poison
             Gaussian stays at least twice as far from the camera, where it is still drawn.
+        supports: per poisoned view, its support views (``support_views``; not in ``innocent``)
+            with their rendered depth: ``view-aware`` prefers the samples they all see.
     """
-    if cfg.placement == "view-aware" and innocent is None:
-        raise ValueError("view-aware placement needs the innocent cameras' rendered depth")
-    penalty = None
-    if cfg.placement == "view-aware" and len(innocent):
-
-        def penalty(pts: Tensor) -> Tensor:
-            return count_seeing_cameras(pts, innocent, margin=cfg.visibility_margin)
-
+    if cfg.placement in CAMERA_PLACEMENTS and innocent is None:
+        raise ValueError(f"{cfg.placement} placement needs the innocent cameras' rendered depth")
     t0 = time.perf_counter()
     grid, kde = build_density(means, opacities, cfg)
     timings = {"density_kde_s": time.perf_counter() - t0}
@@ -154,9 +196,11 @@ def place_poison(
     per_view, invalid, near, seen = {}, {}, {}, {}
     near_unseen: dict[str, float] = {}
     unseen_share: dict[str, float] = {}
+    support_seen: dict[str, float] = {}
     centre = torch.as_tensor((grid.origin + grid.upper) / 2, dtype=torch.float32)
     t1 = time.perf_counter()
-    for view, depth, alpha in zip(views, depths, alphas, strict=True):
+    for i, (view, depth, alpha) in enumerate(zip(views, depths, alphas, strict=True)):
+        penalty = _seen_penalty(cfg, innocent, supports[i] if supports else None)
         rows, cols, origins, dirs, cos, t_max = _illusion_rays(view, depth, alpha, lower, upper)
         scene_depth = median_scene_depth(
             depth, alpha, fallback=float(torch.linalg.norm(centre - view.c2w[:3, 3]))
@@ -174,8 +218,11 @@ def place_poison(
         )
         # per ray: never nearer than 2 near planes in camera z (t = z / cos_theta): still drawn
         drawn = 2.0 * near_plane / cos
-        found = search(torch.clamp(drawn, min=t_min))
-        if penalty is not None:
+        if cfg.placement == "surface":
+            found = on_surface(origins, dirs, t_max, torch.clamp(drawn, min=t_min))
+        else:
+            found = search(torch.clamp(drawn, min=t_min))
+        if cfg.placement == "view-aware" and penalty is not None:
             t_unseen = min(t_min, cfg.unseen_t_min_fraction * scene_depth)
             near_unseen[view.name] = t_unseen
             if t_unseen < t_min:  # equal bounds (the defaults): the first search already prefers unseen
@@ -192,10 +239,13 @@ def place_poison(
         per_view[view.name] = int(valid.sum())
         invalid[view.name] = int((~valid).sum())
         near[view.name] = t_min
-        if penalty is not None and bool(valid.any()):
-            pen = torch.as_tensor(found.penalty)[valid]
-            seen[view.name] = float(pen.mean())
-            unseen_share[view.name] = float((pen == 0).float().mean())
+        if innocent is not None and len(innocent) and bool(valid.any()):
+            count = count_seeing_cameras(pts, innocent, margin=cfg.visibility_margin)
+            seen[view.name] = float(count.float().mean())
+            unseen_share[view.name] = float((count == 0).float().mean())
+        if supports and len(supports[i]) and bool(valid.any()):
+            count = count_seeing_cameras(pts, supports[i], margin=cfg.visibility_margin)
+            support_seen[view.name] = float(count.float().mean())
     timings["ray_search_s"] = time.perf_counter() - t1
     return PoisonPlacement(
         means=torch.cat(out_means) if out_means else torch.zeros(0, 3),
@@ -207,14 +257,18 @@ def place_poison(
         t_min_unseen=near_unseen,
         unseen_fraction=unseen_share,
         seen_by=seen,
+        support_seen=support_seen,
         grid=grid,
         kde=kde,
         timings=timings,
     )
 
 
-def injection_entry(placement: PoisonPlacement, step: int, n_before: int) -> Injection:
-    """The record's entry for ``placement`` injected at ``step`` into a model of ``n_before`` Gaussians."""
+def injection_entry(
+    placement: PoisonPlacement, step: int, n_before: int, support_views: dict[str, list[str]] | None = None
+) -> Injection:
+    """The record's entry for ``placement`` injected at ``step`` into a model of ``n_before`` Gaussians
+    (``support_views``: each poisoned view's support views, by name)."""
     assert placement.grid is not None
     return Injection(
         injected_at_step=step,
@@ -226,6 +280,8 @@ def injection_entry(placement: PoisonPlacement, step: int, n_before: int) -> Inj
         t_min_unseen_per_view=placement.t_min_unseen,
         innocent_views_seeing_poison=placement.seen_by,
         poison_unseen_fraction=placement.unseen_fraction,
+        support_views=support_views or {},
+        support_views_seeing_poison=placement.support_seen,
         density_grid={
             "shape": list(placement.grid.shape),
             "voxel_size": placement.grid.voxel_size,

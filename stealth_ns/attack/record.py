@@ -85,10 +85,13 @@ class Injection:
     invalid_rays_per_view: dict[str, int]  # illusion pixels whose ray had t_max < t_min
     t_min_per_view: dict[str, float]  # near bound of the search
     t_min_unseen_per_view: dict[str, float]  # view-aware: near bound for poison no innocent view sees
-    innocent_views_seeing_poison: dict[str, float]  # view-aware: mean innocent views seeing a poison Gaussian
-    poison_unseen_fraction: dict[str, float]  # view-aware: share of poison no innocent view sees
+    innocent_views_seeing_poison: dict[str, float]  # all but kde: mean innocent views seeing a poison
+    poison_unseen_fraction: dict[str, float]  # all but kde: share of poison no innocent view sees
     density_grid: dict[str, Any]  # shape [3], voxel_size, origin [3]
     timings_s: dict[str, float]
+    # support_views > 0: poisoned view -> its support views, and how many see a poison Gaussian (mean)
+    support_views: dict[str, list[str]] = field(default_factory=dict)
+    support_views_seeing_poison: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -104,6 +107,9 @@ class AttackRecord:
     # a poisoned copy of a dataset (stealth-ns poison-dataset / ipa-poison): threat model, source dataset
     # and its training fingerprint, the images written, the seed points added; None for a run's own attack
     poisoned_dataset: dict[str, Any] | None = None
+    # support views (``support_views``): train index -> its training image from the injection on,
+    # [H, W, 3] float32 in [0, 1] (views.npz / viewNNNN_support.png)
+    support_targets: dict[int, Tensor] = field(default_factory=dict)
 
     @property
     def n_poison_gaussians(self) -> int:
@@ -164,6 +170,9 @@ class AttackRecord:
                 arrays[f"mask_{key}"] = mask
                 save_png(attack_dir / f"view{key}_target.png", v.target)
                 save_png(attack_dir / f"view{key}_mask.png", mask)
+            for index, image in self.support_targets.items():
+                arrays[f"support_{index:04d}"] = image.detach().cpu().float().numpy()
+                save_png(attack_dir / f"view{index:04d}_support.png", image)
             np.savez_compressed(attack_dir / VIEWS_FILE, **arrays)
         (attack_dir / RECORD_FILE).write_text(json.dumps(self.to_json(), indent=2, sort_keys=True))
 
@@ -199,9 +208,11 @@ class AttackRecord:
             for index, name, entry in listed
         ]
         try:
-            return cls.from_json(data, views)
+            record = cls.from_json(data, views)
         except TypeError as err:
             raise RecordError(f"cannot read {path}: {err}") from None
+        record.support_targets = images.support_targets()
+        return record
 
     @staticmethod
     def exists(attack_dir: Path) -> bool:
@@ -235,6 +246,17 @@ class _ViewImages:
             self.arrays = dict(np.load(npz)) if npz.is_file() else None
         except (OSError, ValueError) as err:
             raise RecordError(f"cannot read {npz}: {type(err).__name__}: {err}") from None
+
+    def support_targets(self) -> dict[int, Tensor]:
+        """The support views' training images (train index -> [H, W, 3] float32): ``views.npz``, else
+        the 8-bit ``viewNNNN_support.png`` (records written before the injection rewrote ``views.npz``)."""
+        arrays = {k: v for k, v in (self.arrays or {}).items() if k.startswith("support_")}
+        if arrays:
+            images = {int(k.removeprefix("support_")): np.asarray(v, np.float32) for k, v in arrays.items()}
+        else:
+            pngs = sorted(self.attack_dir.glob("view[0-9][0-9][0-9][0-9]_support.png"))
+            images = {int(p.name[4:8]): to_float32(read_image(p))[..., :3] for p in pngs}
+        return {index: torch.from_numpy(image) for index, image in images.items()}
 
     def mask_and_target(self, index: int, name: str) -> tuple[Tensor, Tensor]:
         key = f"{index:04d}"

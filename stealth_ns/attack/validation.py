@@ -23,6 +23,8 @@ MAX_GRID_RESOLUTION = 1024
 """Largest KDE grid side: the density grid holds ``grid_resolution**3`` floats (4 GiB at 1024)."""
 MAX_SAMPLES_PER_RAY = 1 << 16
 """Most samples per illusion ray (the authors used 8192)."""
+MAX_SUPPORT_VIEWS = 8
+"""Most support views per poisoned view: beyond, the view-specific illusion is an object in the scene."""
 
 
 def option_name(field_name: str) -> str:
@@ -121,6 +123,13 @@ def _check_views(cfg: AttackConfig) -> None:
     ):
         raise _bad("views", views, "training-view indices (>= 0) or image names")
     _int(cfg, "multi_view", "1, 2, 3 or 4", lambda v: 1 <= v <= 4)
+    most = MAX_SUPPORT_VIEWS
+    _int(cfg, "support_views", f"an integer in [0, {most}]", lambda v: 0 <= v <= most)
+    if cfg.support_views and not (cfg.density_guided and cfg.gt_replacement):
+        raise StealthNSError(
+            f"{option_name('support_views')} {cfg.support_views} shows the poison in more views: it needs "
+            f"{option_name('density_guided')} True and {option_name('gt_replacement')} True"
+        )
 
 
 def _check_density_and_search(cfg: AttackConfig) -> None:
@@ -185,6 +194,7 @@ _CHECKED = frozenset(
         "grid_resolution",
         "bandwidth",
         "visibility_margin",
+        "support_views",
         "t_min_fraction",
         "unseen_t_min_fraction",
         "t_min",

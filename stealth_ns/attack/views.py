@@ -5,6 +5,8 @@
 * Multi-view attack (paper section 4): poisoned views at 0, 90, 180 and 270 degrees from the median view,
   measured as azimuth around the scene's vertical axis (:func:`multi_view_indices`).
 * User choice by index or image name (:func:`resolve_views`).
+* Support views of the consistent illusion (``--pipeline.attack.support-views``): a poisoned view's
+  nearest training views (:func:`nearest_views`).
 
 Camera poses are camera-to-world matrices in the nerfstudio / OpenGL convention (camera looks down its
 local ``-Z``, ``+Y`` up), ``[N, 3, 4]`` or ``[N, 4, 4]``, numpy or torch.
@@ -21,7 +23,15 @@ import torch
 
 from stealth_ns.errors import StealthNSError
 
-__all__ = ["median_view", "multi_view_indices", "scene_center", "scene_up", "resolve_views", "rotate_pose"]
+__all__ = [
+    "median_view",
+    "multi_view_indices",
+    "nearest_views",
+    "scene_center",
+    "scene_up",
+    "resolve_views",
+    "rotate_pose",
+]
 
 #: Target azimuths (degrees) of the multi-view attack, in the order they are used.
 MULTI_VIEW_ANGLES: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
@@ -178,6 +188,32 @@ def multi_view_indices(
         diff[chosen] = np.inf
         chosen.append(int(np.argmin(diff)))
     return chosen
+
+
+def nearest_views(camera_to_worlds, index: int, k: int, exclude: Sequence[int] = ()) -> list[int]:
+    """The ``k`` training views nearest to view ``index``: ``[N, 3|4, 4]`` poses -> ``k`` indices.
+
+    Nearest by the distance between camera centres (scene units), among the views that look the
+    same way (viewing directions less than 90 degrees apart); ties by the lower index. ``index``
+    itself and ``exclude`` (e.g. the other poisoned views) are never chosen. Fewer than ``k`` such
+    views: StealthNSError.
+    """
+    c2w = _poses(camera_to_worlds)
+    n = c2w.shape[0]
+    if not 0 <= int(index) < n:
+        raise StealthNSError(f"view index {index} is out of range: {n} training views (0..{n - 1})")
+    centres, looks = c2w[:, :3, 3], -c2w[:, :3, 2]
+    distance = np.linalg.norm(centres - centres[index], axis=1)
+    usable = (looks @ looks[index]) > 0.0
+    usable[[int(index), *map(int, exclude)]] = False
+    candidates = np.flatnonzero(usable)
+    if candidates.size < k:
+        raise StealthNSError(
+            f"--pipeline.attack.support-views {k}: view {index} has only {candidates.size} other training "
+            "views looking the same way"
+        )
+    order = np.lexsort((candidates, distance[candidates]))  # by distance, then index
+    return [int(i) for i in candidates[order[:k]]]
 
 
 def _name_matches(spec: str, names: Sequence[str]) -> list[int]:

@@ -30,8 +30,9 @@ from stealth_ns.runs.training import (
 
 METRICS_FILE = "metrics.json"
 METRICS_LOG = "metrics.log"
-#: What a cached metrics.json holds: 2 added the stealth under the post-hoc defences (version 1 had none).
-METRICS_VERSION = 2
+#: What a cached metrics.json holds: 2 added the stealth under the post-hoc defences (version 1 had none);
+#: 3: the defender's fine-tune trains the support views on their poisoned images (``support_views``).
+METRICS_VERSION = 3
 
 
 def cached_pair_metrics(

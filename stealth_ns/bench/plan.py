@@ -20,6 +20,7 @@ from stealth_ns.errors import StealthNSError
 from stealth_ns.method_configs.attack_experiments import (
     ATTACKS,
     KDE_LEVELS,
+    PAPER_TABLES,
     TABLES,
     RunSpec,
     TableSpec,
@@ -37,10 +38,11 @@ from stealth_ns.runs.training import (
 
 
 def parse_tables(values: Sequence[str | int] | None) -> tuple[int, ...]:
-    """Table numbers from ``--tables`` values (``6``, ``"1,2"``, ``"all"``); None = all."""
+    """Table numbers from ``--tables`` values (``6``, ``"1,2"``, ``"all"``: every table, the stealth
+    tables too); None = the paper's (:data:`PAPER_TABLES`)."""
     known = tuple(t.number for t in TABLES)
     if values is None:
-        return known
+        return PAPER_TABLES
     chosen: list[int] = []
     for value in values:
         for item in str(value).replace(",", " ").split():

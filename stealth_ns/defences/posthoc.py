@@ -13,6 +13,8 @@ view-support           1 / effective number of training views that see the    > 
                        Gaussian (from the per-view blending weights)
 grad-concentration     1 / effective number of training views its gradient    > concentration_threshold
                        comes from during a short fine-tune
+camera-proximity       minus its smallest depth in a training camera that     ratio < proximity_threshold
+                       has it in view, over that camera's median scene depth
 =====================  =====================================================  ==========================
 """
 
@@ -28,7 +30,7 @@ import torch
 from stealth_ns.defences import scores
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.defences.detection import prune_mask_threshold
-from stealth_ns.defences.signals import FineTune, gradient_energy_matrix, view_weight_matrix
+from stealth_ns.defences.signals import FineTune, camera_geometry, gradient_energy_matrix, view_weight_matrix
 from stealth_ns.model import TRAINABLE, StealthSplatModel
 
 DESCRIPTIONS: dict[str, str] = {
@@ -37,6 +39,7 @@ DESCRIPTIONS: dict[str, str] = {
     "count-cap": "keep only the most important Gaussians (Poison-splat's count cap)",
     "view-support": "blending weight concentrated in few training views",
     "grad-concentration": "gradient concentrated in few training views during a short fine-tune",
+    "camera-proximity": "floats close in front of a training camera (depth / the camera's scene depth)",
 }
 
 
@@ -124,12 +127,26 @@ def _grad_concentration(inputs: DefenceInputs, cfg: DefendConfig) -> tuple[np.nd
     )
 
 
+def _camera_proximity(inputs: DefenceInputs, cfg: DefendConfig) -> tuple[np.ndarray, np.ndarray, str]:
+    geometry = camera_geometry(inputs.model, inputs.cameras)
+    ratios = scores.frustum_depth_ratios(
+        _gaussian_arrays(inputs.model)["means"],
+        geometry.viewmats,
+        geometry.Ks,
+        geometry.sizes,
+        geometry.scene_depths,
+    )
+    t = cfg.proximity_threshold
+    return scores.camera_proximity_scores(ratios), ratios < t, f"depth < {t:g} x the camera's scene depth"
+
+
 SCORERS: dict[str, Callable[[DefenceInputs, DefendConfig], tuple[np.ndarray, np.ndarray, str]]] = {
     "zscore": _zscore,
     "sor": _sor,
     "count-cap": _count_cap,
     "view-support": _view_support,
     "grad-concentration": _grad_concentration,
+    "camera-proximity": _camera_proximity,
 }
 
 

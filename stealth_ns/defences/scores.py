@@ -225,3 +225,61 @@ def count_cap_mask(importance: np.ndarray, keep: int) -> np.ndarray:
         raise ValueError(f"keep must be >= 0, got {keep}")
     s = count_cap_scores(importance)
     return prune_mask_top_count(s, s.shape[0] - int(keep))
+
+
+def frustum_depth_ratios(
+    means: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray, sizes: np.ndarray, scene_depths: np.ndarray
+) -> np.ndarray:
+    """How close each centre comes to a training camera that has it in view: ``(N,)`` >= 0,
+    dimensionless, ``+inf`` for a centre no camera has in view.
+
+    Per camera v, a centre in front of it (camera-space ``z > 0``) whose projection falls inside its
+    image has the ratio ``z / scene_depths[v]``; the result is the smallest ratio over the cameras.
+    Occlusion is ignored: the question is where the Gaussian sits, not who sees it.
+
+    Args:
+        means: ``(N, 3)`` centres (scene units).
+        viewmats: ``(V, 4, 4)`` world-to-camera, OpenCV convention (camera looks down ``+z``).
+        Ks: ``(V, 3, 3)`` intrinsics in pixels; sizes: ``(V, 2)`` image ``(width, height)``.
+        scene_depths: ``(V,)`` > 0, each camera's typical distance to what it shows (e.g. the median
+            rendered z-depth), in scene units.
+
+    A row with a non-finite centre scores ``0`` (the most suspicious ratio, so
+    :func:`camera_proximity_scores` gives it ``+inf``).
+    """
+    means = _rows(means, "means", 3)
+    viewmats = np.asarray(viewmats, dtype=np.float64)
+    Ks, sizes = np.asarray(Ks, dtype=np.float64), np.asarray(sizes, dtype=np.float64)
+    depths = np.asarray(scene_depths, dtype=np.float64)
+    v = viewmats.shape[0]
+    if viewmats.shape != (v, 4, 4) or Ks.shape != (v, 3, 3) or sizes.shape != (v, 2) or depths.shape != (v,):
+        raise ValueError(
+            f"viewmats {viewmats.shape}, Ks {Ks.shape}, sizes {sizes.shape}, scene_depths {depths.shape}: "
+            "need (V, 4, 4), (V, 3, 3), (V, 2) and (V,)"
+        )
+    if not np.all(np.isfinite(depths) & (depths > 0)):
+        raise ValueError("scene_depths must be finite and > 0")
+    finite = np.isfinite(means).all(axis=1)
+    points = np.where(finite[:, None], means, 0.0)
+    out = np.full(means.shape[0], np.inf)
+    for cam in range(v):
+        p = points @ viewmats[cam, :3, :3].T + viewmats[cam, :3, 3]
+        z = p[:, 2]
+        front = z > 0
+        zs = np.where(front, z, 1.0)
+        u = Ks[cam, 0, 0] * p[:, 0] / zs + Ks[cam, 0, 2]
+        w = Ks[cam, 1, 1] * p[:, 1] / zs + Ks[cam, 1, 2]
+        inside = front & (u >= 0) & (u < sizes[cam, 0]) & (w >= 0) & (w < sizes[cam, 1])
+        out = np.where(inside, np.minimum(out, z / depths[cam]), out)
+    out[~finite] = 0.0
+    return out
+
+
+def camera_proximity_scores(ratios: np.ndarray) -> np.ndarray:
+    """camera-proximity's score: ``(N,)`` ratios of :func:`frustum_depth_ratios` -> ``-ratio``, so the
+    Gaussian nearest a camera that has it in view is pruned first; one no camera has in view
+    (``+inf``) scores ``-inf``, the least suspicious. A NaN ratio scores ``+inf``."""
+    r = np.asarray(ratios, dtype=np.float64)
+    if r.ndim != 1:
+        raise ValueError(f"ratios must be 1-D (N,), got shape {r.shape}")
+    return np.where(np.isnan(r), np.inf, -r)

@@ -8,6 +8,10 @@ Both return a ``[N, V]`` matrix (N Gaussians, V training views) that
 * :func:`gradient_energy_matrix` -- training dynamics: during a short fine-tune on the training
   images, how much of each Gaussian's gradient comes from each view.
 
+and :func:`camera_geometry`, the cameras with the depth of what each shows, from which
+:func:`stealth_ns.defences.scores.frustum_depth_ratios` measures how close a Gaussian floats in front
+of a camera (camera-proximity).
+
 Poison is meant to be seen from one view, so its support and its gradient concentrate in it.
 """
 
@@ -21,6 +25,7 @@ import torch
 from torch import Tensor
 
 from stealth_ns.model import POISON_TAG, StealthSplatModel
+from stealth_ns.raster.projection import viewmat_from_c2w
 
 
 def _progress(total: int, desc: str):
@@ -42,6 +47,47 @@ def view_weight_matrix(model: StealthSplatModel, cameras: object, desc: str = "v
             out[:, v] = model.blend_weights(cameras[v : v + 1]).cpu().numpy()
             bar.update(1)
     return out
+
+
+@dataclass(frozen=True)
+class CameraGeometry:
+    """The training cameras as :func:`stealth_ns.defences.scores.frustum_depth_ratios` reads them."""
+
+    viewmats: np.ndarray
+    """``[V, 4, 4]`` world-to-camera (OpenCV)."""
+    Ks: np.ndarray
+    """``[V, 3, 3]`` intrinsics (pixels)."""
+    sizes: np.ndarray
+    """``[V, 2]`` image width and height (pixels)."""
+    scene_depths: np.ndarray
+    """``[V]`` median rendered z-depth of the pixels that show a surface (scene units)."""
+
+
+#: Rendered opacity from which a pixel shows a surface (its depth counts in the median).
+SURFACE_ALPHA = 0.5
+
+
+@torch.no_grad()
+def camera_geometry(model: StealthSplatModel, cameras: object, desc: str = "scene depth") -> CameraGeometry:
+    """The cameras of ``cameras`` (V views) with each one's median rendered depth. A view that shows
+    no surface takes the median of the other views' (1.0 scene unit when none shows one)."""
+    depths = np.full(len(cameras), np.nan)
+    with _progress(len(cameras), desc) as bar:
+        for v in range(len(cameras)):
+            out = model.render_view(cameras[v : v + 1])
+            depth, alpha = out["depth"][..., 0], out["accumulation"][..., 0]
+            shown = depth[(alpha >= SURFACE_ALPHA) & torch.isfinite(depth) & (depth > 0)]
+            if shown.numel():
+                depths[v] = float(shown.median())
+            bar.update(1)
+    known = depths[np.isfinite(depths)]
+    depths[~np.isfinite(depths)] = float(np.median(known)) if known.size else 1.0
+    return CameraGeometry(
+        viewmats=viewmat_from_c2w(cameras.camera_to_worlds.float()).double().cpu().numpy(),
+        Ks=cameras.get_intrinsics_matrices().double().cpu().numpy(),
+        sizes=torch.stack([cameras.width[:, 0], cameras.height[:, 0]], dim=1).double().cpu().numpy(),
+        scene_depths=depths,
+    )
 
 
 @dataclass(frozen=True)

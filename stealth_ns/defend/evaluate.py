@@ -24,7 +24,7 @@ from stealth_ns.defend.rule import DEFEAT_V_ILLUSORY, DEFEAT_V_TEST_COST
 from stealth_ns.errors import StealthNSError
 from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
 from stealth_ns.model import StealthSplatModel
-from stealth_ns.pipeline import rgb_float, training_target
+from stealth_ns.pipeline import cached_format, rgb_float, training_target
 from stealth_ns.render_view import render_camera
 from stealth_ns.runs.loaded import LoadedRun, attack_record, load_run
 
@@ -58,11 +58,14 @@ def target_of(run: LoadedRun, record: AttackRecord) -> Target:
 
 def defender_images(target: Target) -> list[torch.Tensor]:
     """The training images as the defender has them: the poisoned views' illusion composites, the
-    clean images elsewhere (the view-consistency noise has decayed by the end of training)."""
+    support views' renders of the poison (``support_views``), the clean images elsewhere (the
+    view-consistency noise has decayed by the end of training)."""
     dm = target.run.pipeline.datamanager
     images = [dm.cached_train[i]["image"] for i in range(len(dm.train_dataset))]
     for v in target.record.views:
         images[v.index] = training_target(v, images[v.index])
+    for index, image in target.record.support_targets.items():
+        images[index] = cached_format(image, images[index])
     return images
 
 

@@ -106,11 +106,11 @@ def poison_dataset(
         "method": method,
         "seed": seed,
     }
-    injection = None
+    injection, support = None, {}
     if attack.density_guided:
-        injection = _add_poison_points(pipeline, copy, source)
+        injection, support = _add_poison_points(pipeline, copy, source)
     if attack.gt_replacement:
-        _write_targets(pipeline, copy)
+        _write_targets(pipeline, copy, support)
     if attack.view_noise:
         _write_static_noise(pipeline, copy, attack)
     details["seconds"] = time.perf_counter() - t0
@@ -120,13 +120,18 @@ def poison_dataset(
         injection_step=0 if attack.density_guided else None,
         noise=None,
         injection=injection,
+        support_targets=support,
     )
     folder = write_record(copy, record, details)
     return _summary(copy, record, folder, victim_command(source, copy.root, method))
 
 
-def _add_poison_points(pipeline: Any, copy: PoisonedCopy, source: SourceDataset) -> Any:
-    """Place the poison on the seed-initialised model and append it to the copy's seed cloud."""
+def _add_poison_points(
+    pipeline: Any, copy: PoisonedCopy, source: SourceDataset
+) -> tuple[Any, dict[int, Any]]:
+    """Place the poison on the seed-initialised model and append it to the copy's seed cloud; returns
+    the record's injection entry and the support views' images (``--support-views``: train index ->
+    float [H, W, 3], the poison as placed over the view's image)."""
     placement = pipeline.poison_placement()
     if placement.means.shape[0] == 0:
         raise StealthNSError(
@@ -138,11 +143,13 @@ def _add_poison_points(pipeline: Any, copy: PoisonedCopy, source: SourceDataset)
     write_injection_files(
         copy.root / RECORD_DIR, placement.means, placement.colors, placement.grid, placement.kde
     )
-    return injection_entry(placement, 0, int(pipeline.model.num_points))
+    support = {i: target for i, (target, _) in pipeline.support_targets(placement).items()}
+    entry = injection_entry(placement, 0, int(pipeline.model.num_points), pipeline.support_view_names())
+    return entry, support
 
 
-def _write_targets(pipeline: Any, copy: PoisonedCopy) -> None:
-    from stealth_ns.pipeline import training_target
+def _write_targets(pipeline: Any, copy: PoisonedCopy, support: dict[int, Any]) -> None:
+    from stealth_ns.pipeline import cached_format, training_target
 
     dm = pipeline.datamanager
     outputs = dm.train_dataparser_outputs
@@ -152,12 +159,18 @@ def _write_targets(pipeline: Any, copy: PoisonedCopy) -> None:
         copy.write_training_image(
             v.name, outputs, v.index, to_uint8(image), to_uint8(clean), "illusion composite I_ILL"
         )
+    names = dm.train_image_names
+    for index, target in support.items():
+        clean = dm.cached_train[index]["image"]
+        image = cached_format(target, clean)
+        change = "support view: the poison's render"
+        copy.write_training_image(names[index], outputs, index, to_uint8(image), to_uint8(clean), change)
 
 
 def _write_static_noise(pipeline: Any, copy: PoisonedCopy, attack: AttackConfig) -> None:
     dm = pipeline.datamanager
     outputs = dm.train_dataparser_outputs
-    poisoned = {v.index for v in pipeline.poison_views}
+    poisoned = {v.index for v in pipeline.poison_views} | set(pipeline.support_indices)
     for index, name in enumerate(dm.train_image_names):
         if index in poisoned:
             continue
