@@ -144,6 +144,24 @@ def test_support_views_data_only_their_images_show_the_poison(scene, tmp_path):
             assert (scene / rel).read_bytes() == (out / rel).read_bytes(), rel
 
 
+def test_an_output_reaching_the_input_through_a_link_is_refused(scene, tmp_path):
+    """An earlier poisoned copy poisoned again, --output naming that copy through a symlinked
+    folder, --overwrite: refused before any work, the input untouched (it used to be deleted)."""
+    first = tmp_path / "x" / "ds"
+    poison_dataset(scene, first, DATA_ONLY)
+    (tmp_path / "x" / "alias").symlink_to(tmp_path / "x")
+    before = tree_hashes(first)
+    for output in (
+        tmp_path / "x" / "alias" / "ds",
+        tmp_path / "x" / "alias" / "ds" / "sub",
+        tmp_path / "x" / "alias",
+    ):
+        with pytest.raises(StealthNSError, match="input dataset") as err:
+            poison_dataset(first, output, DATA_ONLY, overwrite=True)
+        one_line(str(err.value))
+    assert tree_hashes(first) == before
+
+
 def test_seed_cloud_gains_exactly_the_poison_points(poisoned, scene):
     out, _, _ = poisoned
     record = AttackRecord.read(out / "attack")

@@ -104,12 +104,14 @@ def check_output(source: SourceDataset, output: Path, overwrite: bool) -> Path:
     """The absolute output folder, after refusing one that would write into the input or lose data."""
     out = Path(os.path.abspath(Path(output).expanduser()))
     root = source.root
-    if out == root or out.is_relative_to(root):
-        raise StealthNSError(
-            f"--output {output} is inside the input dataset {root}: the input is never written"
-        )
-    if root.is_relative_to(out):
-        raise StealthNSError(f"--output {output} contains the input dataset {root}: give another folder")
+    # compared as written and with symbolic links resolved: a link must not lead --overwrite to the input
+    for o, r in ((out, root), (out.resolve(), root.resolve())):
+        if o == r or o.is_relative_to(r):
+            raise StealthNSError(
+                f"--output {output} is inside the input dataset {root}: the input is never written"
+            )
+        if r.is_relative_to(o):
+            raise StealthNSError(f"--output {output} contains the input dataset {root}: give another folder")
     if out.exists() and not out.is_dir():
         raise StealthNSError(f"--output {output} exists and is not a folder")
     if out.is_dir() and any(out.iterdir()):
