@@ -423,6 +423,14 @@ class StealthPipeline(VanillaPipeline):
             targets[index] = (support_target(clean, rgb, alpha), alpha > 0.5)
         return targets
 
+    def support_training_images(
+        self, support: dict[int, tuple[torch.Tensor, torch.Tensor]]
+    ) -> dict[int, torch.Tensor]:
+        """:meth:`support_targets` in the cache's dtype/channels, as :func:`training_target` does for the
+        poisoned views (RGBA keeps its alpha, made opaque where the poison covers the view)."""
+        cached = self.datamanager.cached_train
+        return {i: cached_format(t, cached[i]["image"], covered) for i, (t, covered) in support.items()}
+
     @torch.no_grad()
     def inject_poison(self, step: int) -> PoisonPlacement:
         """Pipeline callback: place and append one poison Gaussian per illusion pixel."""
@@ -441,11 +449,7 @@ class StealthPipeline(VanillaPipeline):
         support = self.support_targets(placement)
         if support:  # the support views show the poison from now on, noise-free like the poisoned views
             dm = self.datamanager
-            cached = {
-                i: cached_format(t, dm.cached_train[i]["image"], covered)
-                for i, (t, covered) in support.items()
-            }
-            dm.set_poison({**dm.poison_targets, **cached}, dm.noise)
+            dm.set_poison({**dm.poison_targets, **self.support_training_images(support)}, dm.noise)
         placement.timings["total_s"] = time.perf_counter() - t0
         assert self.record is not None
         self.record.injection = injection_entry(placement, step, n_before, self.support_view_names())

@@ -125,15 +125,16 @@ def _seen_penalty(cfg: AttackConfig, innocent: CameraDepths | None, support: Cam
     ``view-aware``: the number of innocent cameras that see the sample, plus, with support views
     (``support_views``), the number of support cameras that do not: the sample that every support
     camera and the fewest others see comes first."""
-    cameras = [c for c in (innocent, support) if c is not None and len(c)]
-    if cfg.placement != "view-aware" or not cameras:
+    innocent = innocent if innocent is not None and len(innocent) else None
+    support = support if support is not None and len(support) else None
+    if cfg.placement != "view-aware" or (innocent is None and support is None):
         return None
 
     def penalty(pts: Tensor) -> Tensor:
         cost = torch.zeros(pts.shape[:-1], dtype=torch.int32, device=pts.device)
-        if innocent is not None and len(innocent):
+        if innocent is not None:
             cost += count_seeing_cameras(pts, innocent, margin=cfg.visibility_margin)
-        if support is not None and len(support):
+        if support is not None:
             cost += len(support) - count_seeing_cameras(pts, support, margin=cfg.visibility_margin)
         return cost
 

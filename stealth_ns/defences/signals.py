@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from stealth_ns.attack.injection import median_scene_depth
 from stealth_ns.model import POISON_TAG, StealthSplatModel
 from stealth_ns.raster.projection import viewmat_from_c2w
 
@@ -63,10 +64,6 @@ class CameraGeometry:
     """``[V]`` median rendered z-depth of the pixels that show a surface (scene units)."""
 
 
-#: Rendered opacity from which a pixel shows a surface (its depth counts in the median).
-SURFACE_ALPHA = 0.5
-
-
 @torch.no_grad()
 def camera_geometry(model: StealthSplatModel, cameras: object, desc: str = "scene depth") -> CameraGeometry:
     """The cameras of ``cameras`` (V views) with each one's median rendered depth. A view that shows
@@ -75,10 +72,7 @@ def camera_geometry(model: StealthSplatModel, cameras: object, desc: str = "scen
     with _progress(len(cameras), desc) as bar:
         for v in range(len(cameras)):
             out = model.render_view(cameras[v : v + 1])
-            depth, alpha = out["depth"][..., 0], out["accumulation"][..., 0]
-            shown = depth[(alpha >= SURFACE_ALPHA) & torch.isfinite(depth) & (depth > 0)]
-            if shown.numel():
-                depths[v] = float(shown.median())
+            depths[v] = median_scene_depth(out["depth"][..., 0], out["accumulation"][..., 0], np.nan)
             bar.update(1)
     known = depths[np.isfinite(depths)]
     depths[~np.isfinite(depths)] = float(np.median(known)) if known.size else 1.0

@@ -120,7 +120,7 @@ def poison_dataset(
         injection_step=0 if attack.density_guided else None,
         noise=None,
         injection=injection,
-        support_targets=support,
+        support_targets={i: target for i, (target, _) in support.items()},
     )
     folder = write_record(copy, record, details)
     return _summary(copy, record, folder, victim_command(source, copy.root, method))
@@ -130,8 +130,8 @@ def _add_poison_points(
     pipeline: Any, copy: PoisonedCopy, source: SourceDataset
 ) -> tuple[Any, dict[int, Any]]:
     """Place the poison on the seed-initialised model and append it to the copy's seed cloud; returns
-    the record's injection entry and the support views' images (``--support-views``: train index ->
-    float [H, W, 3], the poison as placed over the view's image)."""
+    the record's injection entry and the support views' images (``--support-views``:
+    :meth:`StealthPipeline.support_targets`)."""
     placement = pipeline.poison_placement()
     if placement.means.shape[0] == 0:
         raise StealthNSError(
@@ -143,13 +143,12 @@ def _add_poison_points(
     write_injection_files(
         copy.root / RECORD_DIR, placement.means, placement.colors, placement.grid, placement.kde
     )
-    support = {i: target for i, (target, _) in pipeline.support_targets(placement).items()}
     entry = injection_entry(placement, 0, int(pipeline.model.num_points), pipeline.support_view_names())
-    return entry, support
+    return entry, pipeline.support_targets(placement)
 
 
 def _write_targets(pipeline: Any, copy: PoisonedCopy, support: dict[int, Any]) -> None:
-    from stealth_ns.pipeline import cached_format, training_target
+    from stealth_ns.pipeline import training_target
 
     dm = pipeline.datamanager
     outputs = dm.train_dataparser_outputs
@@ -160,9 +159,8 @@ def _write_targets(pipeline: Any, copy: PoisonedCopy, support: dict[int, Any]) -
             v.name, outputs, v.index, to_uint8(image), to_uint8(clean), "illusion composite I_ILL"
         )
     names = dm.train_image_names
-    for index, target in support.items():
+    for index, image in pipeline.support_training_images(support).items():
         clean = dm.cached_train[index]["image"]
-        image = cached_format(target, clean)
         change = "support view: the poison's render"
         copy.write_training_image(names[index], outputs, index, to_uint8(image), to_uint8(clean), change)
 
