@@ -6,7 +6,9 @@ one line (``stealth-ns: error: ...``) and exits with status 2, never a traceback
 
 from __future__ import annotations
 
+import contextlib
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
@@ -18,6 +20,7 @@ from stealth_ns.defences.config import DefendConfig
 from stealth_ns.difficulty.rank import RankViews
 from stealth_ns.errors import StealthNSError
 from stealth_ns.poisoning.config import IPAConfig
+from stealth_ns.scan.config import ScanConfig
 
 
 @dataclass
@@ -136,13 +139,19 @@ class Report:
     """Compare a poisoned run with a clean run of the same scene: report.json, report.html, PNGs."""
 
     poisoned: Path
-    """config.yml (or run folder) of the attacked run."""
+    """config.yml (or run folder) of the attacked run, or a 3DGS PLY of a victim trained elsewhere
+    (with --poisoned-data)."""
     clean: Path
-    """config.yml (or run folder) of a clean run of the same scene (--pipeline.attack.enabled False)."""
+    """config.yml (or run folder) of a clean run of the same scene (--pipeline.attack.enabled False), or a
+    3DGS PLY (with --clean-data)."""
     output: Path = Path("stealth-report")
     """Folder to write report.json, report.html, the figures and images/."""
     defend: Path | None = None
     """Output folder of `stealth-ns defend --run POISONED`: adds a "Defences" section to report.html."""
+    poisoned_data: Path | None = None
+    """The dataset a --poisoned PLY was trained on (for a victim of poison-dataset: the poisoned copy)."""
+    clean_data: Path | None = None
+    """The dataset a --clean PLY was trained on."""
     stealth: bool = True
     """Measure the poisoned run's stealth: every post-hoc defence's AUROC, the V-illusory the strongest
     leaves at <= 0.5 dB of V-test, stealthy success (seconds at the demo's scale; --no-stealth skips it)."""
@@ -150,7 +159,8 @@ class Report:
     def main(self) -> None:
         from stealth_ns.report.write import summary_lines, write_report
 
-        report = write_report(self.poisoned, self.clean, self.output, self.defend, stealth=self.stealth)
+        data = (self.poisoned_data, self.clean_data)
+        report = write_report(self.poisoned, self.clean, self.output, self.defend, self.stealth, *data)
         print("\n".join(summary_lines(report, self.output)))
 
 
@@ -281,10 +291,11 @@ class SeedPoints:
 
 @dataclass
 class CheckData:
-    """Check a nerfstudio-data dataset (transforms.json, images, poses, intrinsics) before training."""
+    """Check a nerfstudio-data or COLMAP dataset (files, images, poses, intrinsics, seed points) first."""
 
     data: Path
-    """nerfstudio-data folder (transforms.json) or a transforms JSON file."""
+    """nerfstudio-data folder (transforms.json), a transforms JSON file, or a COLMAP folder (sparse/0,
+    images/)."""
 
     def main(self) -> None:
         from stealth_ns.dataset_check import check_dataset
@@ -318,9 +329,62 @@ class Defend:
         print((self.output / "defend.md").read_text())
 
 
+@dataclass
+class BenchScan:
+    """Scan every run of a bench attack folder: the verdict against what each run is (docs/scan.md)."""
+
+    runs: Path
+    """A `stealth-ns bench attack` output folder (or its results.json): the runs to scan."""
+    output: Path = Path("bench-scan-output")
+    """Folder for scan.md (confusion table, AUROC, every run) and scan-results.json."""
+    only: tuple[str, ...] = ()
+    """Scan only the runs whose name (SCENE/RUN, e.g. orbit/clean) contains one of these."""
+    as_ply: bool = False
+    """Scan each run as another trainer's model: written as a 3DGS PLY in its dataset's own frame,
+    without the poison tag (OUTPUT/plys/), then scanned with --frame auto."""
+    options: Annotated[ScanConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ScanConfig)
+
+    def main(self) -> None:
+        from stealth_ns.bench.scan_table import TABLE_FILE, run_bench_scan
+
+        run_bench_scan(self.runs, self.output, self.options, self.only, self.as_ply)
+        print((self.output / TABLE_FILE).read_text(encoding="utf-8"))
+
+
+@dataclass
+class Scan:
+    """Look for poison in a trained 3DGS model from any trainer, no ground truth: a verdict and the views."""
+
+    model: Path
+    """The model: a 3DGS PLY (official 3DGS, gsplat, OpenSplat, ns-export gaussian-splat) or a
+    nerfstudio run's config.yml (stealth-splat, splatfacto)."""
+    data: Path | None = None
+    """The dataset the model was trained on (nerfstudio-data, COLMAP or Blender): its training cameras
+    and images. Needed for a PLY; a run's own dataset by default."""
+    output: Path = Path("stealth-scan")
+    """Folder for scan.json, scan.html, the images and the cleaned model (cleaned.ply, cleaned/)."""
+    options: Annotated[ScanConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ScanConfig)
+
+    def main(self) -> None:
+        from stealth_ns.scan.command import run_scan, summary_lines
+
+        doc = run_scan(self.model, self.data, self.output, self.options)
+        print("\n".join(summary_lines(doc, self.output)))
+
+
 def _default_data_only_attack() -> AttackConfig:
     # a static dataset: no noise unless asked for, and then constant (the decaying schedule cannot apply)
     return AttackConfig(view_noise=False, noise_decay="constant")
+
+
+@contextlib.contextmanager
+def _attack_flags_as_given() -> Iterator[None]:
+    """The attack's errors name its options as ns-train spells them (``--pipeline.attack.t-min``); the
+    dataset commands take them without the prefix (``--t-min``): say them so."""
+    try:
+        yield
+    except StealthNSError as err:
+        raise StealthNSError(str(err).replace("--pipeline.attack.", "--")) from None
 
 
 @dataclass
@@ -347,9 +411,11 @@ class PoisonDataset:
                 "--enabled False: poison-dataset always writes the attack (copy the folder instead)"
             )
         # --seed (the attack's) also seeds the set-up, as ns-train's --machine.seed would
-        print(
-            poison_dataset(self.data, self.output, self.attack, self.method, self.attack.seed, self.overwrite)
-        )
+        with _attack_flags_as_given():
+            summary = poison_dataset(
+                self.data, self.output, self.attack, self.method, self.attack.seed, self.overwrite
+            )
+        print(summary)
 
 
 @dataclass
@@ -398,11 +464,12 @@ class IpaPoison:
             view_noise=False,
             seed=self.seed,
         )
-        validate_attack_config(attack)
+        with _attack_flags_as_given():
+            validate_attack_config(attack)
         if self.iterations is not None and self.iterations < 1:
             raise StealthNSError(f"--iterations must be a positive integer, got {self.iterations}")
-        print(
-            ipa_poison(
+        with _attack_flags_as_given():
+            summary = ipa_poison(
                 self.data,
                 self.output,
                 attack,
@@ -412,7 +479,7 @@ class IpaPoison:
                 self.iterations,
                 self.overwrite,
             )
-        )
+        print(summary)
 
 
 # command words -> dataclass; each dataclass has a ``main()``. Kept as a plain table (not a
@@ -424,10 +491,12 @@ COMMANDS: dict[str, type] = {
     "bench raster": BenchRaster,
     "bench attack": BenchAttack,
     "bench train": BenchTrain,
+    "bench scan": BenchScan,
     "rank-views": RankViews,
     "seed-points": SeedPoints,
     "check-data": CheckData,
     "defend": Defend,
+    "scan": Scan,
     "poison-dataset": PoisonDataset,
     "ipa-poison": IpaPoison,
 }

@@ -56,18 +56,22 @@ class NoiseSpec:
 
 
 def check_nerfstudio_data(config: FullImageDatamanagerConfig | None) -> None:
-    """Stop with one line (file and frame) if a nerfstudio-data dataset is broken, before
+    """Stop with one line (file and frame) if a nerfstudio-data or COLMAP dataset is broken, before
     nerfstudio's parser meets the problem as a traceback (:mod:`stealth_ns.dataset_check`)."""
+    from nerfstudio.data.dataparsers.colmap_dataparser import ColmapDataParserConfig
     from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 
-    from stealth_ns.dataset_check import check_dataset
+    from stealth_ns.dataset_check import check_colmap, check_dataset
     from stealth_ns.errors import StealthNSError, fail
 
     dataparser = getattr(config, "dataparser", None)
-    if not isinstance(dataparser, NerfstudioDataParserConfig) or dataparser.data is None:
+    if getattr(dataparser, "data", None) is None:
         return
     try:
-        check_dataset(Path(dataparser.data), downscale_factor=dataparser.downscale_factor)
+        if isinstance(dataparser, NerfstudioDataParserConfig):
+            check_dataset(Path(dataparser.data), downscale_factor=dataparser.downscale_factor)
+        elif isinstance(dataparser, ColmapDataParserConfig):
+            check_colmap(Path(dataparser.data), str(dataparser.colmap_path), str(dataparser.images_path))
     except StealthNSError as err:
         fail(err)
 

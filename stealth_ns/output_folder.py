@@ -8,10 +8,10 @@ from pathlib import Path
 from stealth_ns.errors import StealthNSError
 
 
-def check_writable(output: Path) -> None:
+def check_writable(output: Path, what: str = "report") -> None:
     """StealthNSError unless the folder ``output`` (existing or to be created) can be written and its
-    ``images/``, where a report puts its pictures, is not a file. Used by ``report`` and ``defend``;
-    the messages say "report" for both (as they did before this module was split out)."""
+    ``images/``, where the commands put their pictures, is not a file. ``what`` names the command's
+    output in the messages ("report", "defence results", "scan")."""
     if output.exists() and not output.is_dir():
         raise StealthNSError(f"--output {output} is a file, not a folder")
     if (output / "images").exists() and not (output / "images").is_dir():
@@ -22,11 +22,11 @@ def check_writable(output: Path) -> None:
             break
         existing = existing.parent
     if existing.exists() and not existing.is_dir():
-        raise StealthNSError(f"cannot write the report to {output}: {existing} is a file, not a folder")
+        raise StealthNSError(f"cannot write the {what} to {output}: {existing} is a file, not a folder")
     try:  # a real write: permissions, read-only file systems, root
         with tempfile.TemporaryDirectory(dir=existing, prefix=".stealth-ns-write-test-"):
             pass
     except OSError as err:
         raise StealthNSError(
-            f"cannot write the report to {output}: {err.strerror or err} ({existing})"
+            f"cannot write the {what} to {output}: {err.strerror or err} ({existing})"
         ) from None

@@ -35,6 +35,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "stealth_ns", "errors", "json_io", "image_io", "provenance", "fingerprint", "safe_config",
             "step_timing", "malloc_tuning", "schedulers", "optimizers", "figures", "output_folder",
+            "html_page",
         ),
     ),
     (
@@ -42,17 +43,21 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "raster", "attack", "scenes", "metrics", "ssim", "densification", "gaussian_rows",
             "dataset_check", "seed_points", "triangulation", "datasets", "defences", "gaussian_init",
+            "gaussian_ply", "gaussian_transform",
         ),
     ),
     (
         "model",
-        ("model", "render_view", "export", "defences.signals", "defences.posthoc", "defences.pruned_run"),
+        (
+            "model", "render_view", "export", "model_cloud", "defences.signals", "defences.posthoc",
+            "defences.pruned_run",
+        ),
     ),
     ("training parts", ("datamanager", "viewer")),
     ("pipeline and methods", ("pipeline", "method_configs")),
     ("poisoning", ("poisoning",)),
     ("trained runs", ("runs",)),
-    ("evaluation", ("difficulty", "defend")),
+    ("evaluation", ("difficulty", "defend", "scan")),
     ("report", ("report",)),
     ("bench", ("bench",)),
     ("commands", ("demo", "cli")),

@@ -106,3 +106,21 @@ def test_short_poisoned_run_on_the_gpu(tiny_orbit_scene, tmp_path):
     checkpoint = next((run / "nerfstudio_models").glob("step-*.ckpt"))
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)["pipeline"]
     assert state["_model.gauss_params.poison"].sum() > 0  # the poison rows were trained and kept
+
+
+@pytest.mark.slow
+def test_scan_on_the_gpu_names_the_poisoned_view(tiny_orbit_scene, tmp_path):
+    """stealth-ns scan renders with gsplat on CUDA: a poisoned run is suspicious and its poisoned view is
+    the one named."""
+    from stealth_ns.runs.imported import load_model
+    from stealth_ns.scan.config import ScanConfig
+    from stealth_ns.scan.scanner import scan_model
+
+    config = train_tiny(
+        tiny_orbit_scene, tmp_path, "scan", "--pipeline.attack.injection-step", "20", iterations=300
+    )
+    on_gpu = scan_model(load_model(config), ScanConfig())  # the run loads on CUDA when there is one
+    assert str(on_gpu.model.run.model.device).startswith("cuda")
+    assert on_gpu.verdict == "suspicious"
+    record = json.loads((config.parent / "attack" / "attack.json").read_text())
+    assert [g.name for g in on_gpu.targeted] == [v["name"] for v in record["poisoned_views"]]

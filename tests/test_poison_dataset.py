@@ -282,20 +282,21 @@ def test_applied_transform_is_undone_for_the_seed_points(scene, tmp_path):
 
 
 def test_files_outside_the_dataset_are_copied_into_it(scene, tmp_path):
-    """A seeded copy (``stealth-ns seed-points --output``) names its images ``../...``: the poisoned copy
-    must be self-contained (images under ``external/``, every reference rewritten: the frames and the
-    split lists), loadable by nerfstudio, and the poisoned image written there, not into the input."""
+    """A seeded copy (``stealth-ns seed-points --output``) names the images and depths of the dataset it
+    was made from ``../orig/...``: the poisoned copy must be self-contained (those files under
+    ``external/``, every reference rewritten: the frames and the split lists), loadable by nerfstudio,
+    and the poisoned image written there, not into the input."""
     root = tmp_path / "user"
-    shutil.copytree(scene / "images", root / "imgs")
+    shutil.copytree(scene, root / "orig")  # the dataset seed-points read (it declares these files)
     data = root / "seeded"
     data.mkdir()
     shutil.copy2(scene / "sparse_pc.ply", data / "sparse_pc.ply")
     meta = _meta(scene)
     for frame in meta["frames"]:
-        frame["file_path"] = "../imgs/" + Path(frame["file_path"]).name
-        del frame["depth_file_path"]
+        frame["file_path"] = "../orig/" + frame["file_path"]
+        frame["depth_file_path"] = "../orig/" + frame["depth_file_path"]
     for key in ("train_filenames", "val_filenames", "test_filenames"):
-        meta[key] = ["../imgs/" + Path(p).name for p in meta[key]]
+        meta[key] = ["../orig/" + p for p in meta[key]]
     (data / "transforms.json").write_text(json.dumps(meta))
     before = tree_hashes(root)
 
@@ -305,6 +306,8 @@ def test_files_outside_the_dataset_are_copied_into_it(scene, tmp_path):
     copied = _meta(out)
     names = [f["file_path"] for f in copied["frames"]]
     assert all(not p.startswith("..") and (out / p).is_file() for p in names), names
+    depths = [f["depth_file_path"] for f in copied["frames"]]
+    assert all(p.startswith("external/") and (out / p).is_file() for p in depths), depths
     for key in ("train_filenames", "val_filenames", "test_filenames"):
         assert all(not p.startswith("..") and (out / p).is_file() for p in copied[key]), (key, copied[key])
     (view,) = AttackRecord.read(out / "attack").views
@@ -417,8 +420,11 @@ def test_missing_view_is_named_with_a_suggestion(scene, tmp_path):
         (("--output", "INSIDE"), "inside the input dataset"),
         (("--injection-step", "5"), "--injection-step 5"),
         (("--view-noise", "--noise-decay", "linear"), "use --noise-decay constant"),
+        # the attack's own checks name the options as this command spells them (not --pipeline.attack.X)
+        (("--support-views", "3", "--no-density-guided"), "error: --support-views 3 shows the poison"),
+        (("--t-min", "-1"), "error: --t-min must be None or > 0"),
     ],
-    ids=["output-inside-input", "injection-step", "linear-noise"],
+    ids=["output-inside-input", "injection-step", "linear-noise", "support-views-flag", "t-min-flag"],
 )
 def test_cli_errors_are_one_line_with_status_2(scene, tmp_path, extra, expected):
     args = ["--data", str(scene), "--output", str(tmp_path / "out")]

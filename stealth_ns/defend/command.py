@@ -177,7 +177,7 @@ def clean_reference(target: Target, clean: Path) -> dict[str, Any]:
 
 def _check_output(run: Path, output: Path, clean: Path | None) -> None:
     """One-line errors before anything is loaded: the output must be writable and not a run folder."""
-    check_writable(output)
+    check_writable(output, "defence results")
     for given in (run, clean):
         if given is None:
             continue
@@ -187,3 +187,26 @@ def _check_output(run: Path, output: Path, clean: Path | None) -> None:
             raise StealthNSError(
                 f"--output {output} is inside the run folder {run_dir}; choose another folder"
             )
+    if clean is not None:
+        _check_clean(run, clean)
+
+
+def _config_of(given: Path) -> Path:
+    return (given / "config.yml" if given.is_dir() else given).resolve()
+
+
+def _check_clean(run: Path, clean: Path) -> None:
+    """``--clean`` must be another run, trained without the attack (as ``report`` requires)."""
+    from stealth_ns.safe_config import load_config
+
+    config = _config_of(clean)
+    if config == _config_of(run):
+        raise StealthNSError(f"--clean {clean} is the attacked run itself: give a clean run of its scene")
+    if not config.is_file():
+        raise StealthNSError(f"no run config at {config} (--clean: give the config.yml of a clean run)")
+    attack = getattr(load_config(config).pipeline, "attack", None)
+    if attack is not None and attack.enabled:
+        raise StealthNSError(
+            f"--clean {clean} was trained with the attack on; train the clean run with "
+            "--pipeline.attack.enabled False (or any other splatting method)"
+        )

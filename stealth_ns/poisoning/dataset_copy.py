@@ -195,6 +195,7 @@ def copy_dataset(source: SourceDataset, output: Path, overwrite: bool = False) -
     """Copy ``source`` into ``output`` (checked by :func:`check_output`); files the dataset references
     outside its folder are copied into ``output/external`` and the references rewritten."""
     out = check_output(source, output, overwrite)
+    _check_source(source)  # a file named outside the dataset is refused before anything is written
     if out.exists():
         shutil.rmtree(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -212,62 +213,81 @@ def copy_dataset(source: SourceDataset, output: Path, overwrite: bool = False) -
     return copy
 
 
+def _check_source(source: SourceDataset) -> None:
+    """The dataset check's path rules (:mod:`stealth_ns.dataset_check`): no file it names leaves its
+    folder, except the images and depths of the dataset a seeded copy was made from."""
+    from stealth_ns.dataset_check import check_colmap, check_references, read_json_object, transforms_path
+
+    if source.format == "colmap":
+        check_colmap(source.root, str(source.colmap_path), decode=False)
+    else:
+        path = transforms_path(source.root)
+        check_references(path, read_json_object(path))
+
+
 def _internalise_references(copy: PoisonedCopy) -> None:
     """Make a nerfstudio-data copy self-contained: files its transforms.json names outside the dataset
-    folder are copied into ``external/`` and the paths rewritten (relative to the copy)."""
+    folder are copied into ``external/`` and the paths rewritten (relative to the copy), as are absolute
+    paths into the folder (they named the input's files, not the copy's).
+
+    First, before any file is copied, every reference is checked as ``check-data`` checks it
+    (:func:`stealth_ns.dataset_check.check_references`): a file outside the folder is copied only when
+    it is one another dataset declares as its own -- the images of a seeded copy made by ``stealth-ns
+    seed-points --output`` -- never ``../../etc/passwd`` nor a ``ply_file_path`` elsewhere.
+    """
+    from stealth_ns.dataset_check import check_references
+
     path = copy.root / "transforms.json"
-    meta = json.loads(path.read_text(encoding="utf-8"))
-    changed = False
-
-    def internal(value: str) -> str:
-        nonlocal changed
-        source = Path(os.path.abspath(copy.source.root / value))
-        if source.is_relative_to(copy.source.root):
-            return value
-        if source not in copy.moved:
-            target = copy.root / EXTERNAL_DIR / source.parent.name / source.name
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(source, target)
-            copy.moved[source] = target
-        changed = True
-        return str(copy.moved[source].relative_to(copy.root))
-
+    text = path.read_text(encoding="utf-8")
+    meta = json.loads(text)
+    check_references(copy.source.root / "transforms.json", meta)
+    renamed: dict[Path, str] = {}  # a frame's path as nerfstudio matches it -> its path in the copy
     for frame in meta.get("frames", []):
         for key in _FRAME_FILE_KEYS:
             if isinstance(frame.get(key), str):
-                frame[key] = internal(frame[key])
+                new = _internal_reference(copy, frame[key])
+                renamed[Path(frame[key])] = new
+                frame[key] = new
     for key in ("ply_file_path", "mask_path"):
         if isinstance(meta.get(key), str):
-            meta[key] = internal(meta[key])
+            meta[key] = _internal_reference(copy, meta[key])
     for key in _SPLIT_KEYS:  # nerfstudio matches these against the frames' paths
         if isinstance(meta.get(key), list):
-            meta[key] = [internal(v) if isinstance(v, str) else v for v in meta[key]]
-    if changed:
+            meta[key] = [renamed.get(Path(v), v) if isinstance(v, str) else v for v in meta[key]]
+    if meta != json.loads(text):  # an unchanged file stays byte for byte the input's
         write_json_atomic(path, meta)
 
 
+def _internal_reference(copy: PoisonedCopy, value: str) -> str:
+    """``value`` (a path in the source's transforms.json, checked) as a path relative to the copy: a file
+    of the folder by its relative path, one outside it (links resolved) copied under ``external/``."""
+    root = copy.source.root
+    source = Path(os.path.abspath(root / value))
+    if source.is_relative_to(root):
+        return value if not os.path.isabs(value) else source.relative_to(root).as_posix()
+    real, real_root = Path(os.path.realpath(source)), Path(os.path.realpath(root))
+    if real.is_relative_to(real_root):  # reached from outside, through a link to the folder
+        copy.moved[source] = copy.root / real.relative_to(real_root)
+    elif source not in copy.moved:
+        taken = set(copy.moved.values())
+        folder, k = source.parent.name, 1
+        while (target := copy.root / EXTERNAL_DIR / folder / source.name) in taken:
+            k += 1  # another folder of that name: never overwrite a file copied before
+            folder = f"{source.parent.name}_{k}"
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(source, target)
+        copy.moved[source] = target
+    return copy.moved[source].relative_to(copy.root).as_posix()
+
+
 # ---------------------------------------------------------------------------------- seed points
-def _applied_transform(source: SourceDataset) -> np.ndarray | None:
-    """[4, 4] the ``applied_transform`` nerfstudio-data's parser composes into its dataparser transform
-    (present in transforms.json, or implied by a ``colmap/sparse/0`` folder), None when there is none."""
-    meta = json.loads((source.root / "transforms.json").read_text(encoding="utf-8"))
-    applied = meta.get("applied_transform")
-    if applied is None and (source.root / "colmap" / "sparse" / "0").exists():
-        applied = [[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 0]]
-    return None if applied is None else np.vstack([np.asarray(applied, dtype=np.float64), [0, 0, 0, 1]])
-
-
 def to_dataset_frame(points: torch.Tensor | np.ndarray, outputs: Any, source: SourceDataset) -> np.ndarray:
-    """[M, 3] points in nerfstudio's normalised frame -> the frame of the dataset's seed points.
+    """[M, 3] points in nerfstudio's normalised frame -> the frame of the dataset's seed points (the
+    inverse of :func:`stealth_ns.datasets.frames.dataset_to_nerfstudio`)."""
+    from stealth_ns.datasets.frames import dataset_to_nerfstudio
 
-    nerfstudio loads seed points as ``p' = s * (M @ [p, 1])`` with ``s`` the dataparser scale and ``M``
-    the dataparser transform, except that nerfstudio-data's transform includes the ``applied_transform``
-    its PLY already has (``M = T @ A``, points use ``T``). This inverts that.
-    """
-    m = np.vstack([outputs.dataparser_transform.double().cpu().numpy(), [0, 0, 0, 1]])
-    if source.format == "nerfstudio-data" and (applied := _applied_transform(source)) is not None:
-        m = m @ np.linalg.inv(applied)
-    p = np.asarray(points, dtype=np.float64) / float(outputs.dataparser_scale)
+    m = dataset_to_nerfstudio(outputs, source.scene)
+    p = np.asarray(points, dtype=np.float64)
     homo = np.concatenate([p, np.ones((len(p), 1))], axis=1)
     return (homo @ np.linalg.inv(m).T)[:, :3]
 

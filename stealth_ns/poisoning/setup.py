@@ -46,14 +46,15 @@ def device() -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-def setup_pipeline(config: Any) -> Any:
-    """The config's pipeline, set up for training (data loaded, poisoned views resolved) but not trained;
-    the pipeline's own one-line errors come out as :class:`StealthNSError`."""
+def setup_pipeline(config: Any, test_mode: str = "val") -> Any:
+    """The config's pipeline, set up for training (data loaded, poisoned views resolved) but not trained
+    (``test_mode`` "test" loads the held-out split as evaluation does); the pipeline's own one-line errors
+    come out as :class:`StealthNSError`."""
     from nerfstudio.scripts.train import _set_random_seed
 
     _set_random_seed(config.machine.seed)  # as ns-train seeds before the trainer is set up
     try:
-        return config.pipeline.setup(device=device(), test_mode="val", world_size=1, local_rank=0)
+        return config.pipeline.setup(device=device(), test_mode=test_mode, world_size=1, local_rank=0)
     except StealthNSExit as err:
         raise err.error from None
 

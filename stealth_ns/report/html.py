@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from stealth_ns.html_page import render_page
+
 
 def fmt(value: Any, digits: int = 2) -> str:
     """A table cell or inline number: ``–`` for a missing value, yes/no, floats to ``digits``."""
@@ -19,16 +21,9 @@ def fmt(value: Any, digits: int = 2) -> str:
 def render_html(report: dict[str, Any]) -> str:
     """``report.html``: ``templates/report.html.j2`` filled from the report (autoescaped; inline CSS,
     images referenced relative to the report folder)."""
-    import jinja2
-
-    env = jinja2.Environment(
-        loader=jinja2.PackageLoader("stealth_ns.report", "templates"),
-        autoescape=True,
-        undefined=jinja2.StrictUndefined,
-        trim_blocks=True,
-        lstrip_blocks=True,
-    )
-    env.filters["fmt"] = fmt
-    env.filters["fmt_angle"] = lambda angle: f"{angle:g}"
-    env.filters["threshold_row"] = lambda item: [*item[0].split("/"), item[1]]
-    return env.get_template("report.html.j2").render(r=report)
+    filters = {
+        "fmt": fmt,
+        "fmt_angle": lambda angle: f"{angle:g}",
+        "threshold_row": lambda item: [*item[0].split("/"), item[1]],
+    }
+    return render_page("stealth_ns.report", "report.html.j2", filters, r=report)

@@ -126,13 +126,17 @@ def write_report(
     output: Path,
     defend: Path | None = None,
     stealth: bool = True,
+    poisoned_data: Path | None = None,
+    clean_data: Path | None = None,
 ) -> dict[str, Any]:
     """Compare the runs and write ``report.json``, ``report.html`` and PNGs into ``output``; with
     ``defend`` (a ``stealth-ns defend`` folder of the poisoned run) also a "Defences" section;
-    ``stealth``: measure the poisoned run's stealth under the post-hoc defences (a "Stealth" section)."""
+    ``stealth``: measure the poisoned run's stealth under the post-hoc defences (a "Stealth" section).
+    Either run may be a 3DGS PLY from another trainer with its dataset (``*_data``: a victim of
+    ``poison-dataset`` with the poisoned copy it was trained on)."""
     output = Path(output)
     check_writable(output)  # before loading two runs (the slow part)
-    pair = RunPair.load(Path(poisoned_config), Path(clean_config))
+    pair = RunPair.load(Path(poisoned_config), Path(clean_config), poisoned_data, clean_data)
     images = output / "images"
     clear_previous_report(output)
     images.mkdir(parents=True, exist_ok=True)

@@ -9,6 +9,7 @@ from typing import Any
 from stealth_ns.attack.record import AttackRecord, PoisonView
 from stealth_ns.errors import StealthNSError
 from stealth_ns.fingerprint import fingerprint_differences
+from stealth_ns.runs.imported import load_model
 from stealth_ns.runs.loaded import LoadedRun, attack_record, load_run
 
 
@@ -21,8 +22,12 @@ class RunPair:
     record: AttackRecord  # the poisoned run's
 
     @classmethod
-    def load(cls, poisoned: Path, clean: Path) -> RunPair:
-        ours, theirs = load_run(poisoned), load_run(clean)
+    def load(
+        cls, poisoned: Path, clean: Path, poisoned_data: Path | None = None, clean_data: Path | None = None
+    ) -> RunPair:
+        """Load both; either may be a PLY of another trainer with the dataset it was trained on
+        (``*_data``: required for a PLY; the victim of a poisoned copy is scored on that copy)."""
+        ours, theirs = _load(poisoned, poisoned_data), _load(clean, clean_data)
         pair = cls(ours, theirs, attack_record(ours, poisoned))
         if pair.clean.attack_enabled:
             raise StealthNSError(
@@ -59,6 +64,14 @@ class RunPair:
     @property
     def cameras(self) -> Any:
         return self.poisoned.pipeline.datamanager.train_dataset.cameras
+
+
+def _load(path: Path, data: Path | None) -> LoadedRun:
+    """A run as :func:`load_run` loads it; a PLY, or a run given with its dataset, as
+    :func:`~stealth_ns.runs.imported.load_model` does."""
+    if data is None and Path(path).suffix.lower() != ".ply":
+        return load_run(path)
+    return load_model(Path(path), None if data is None else Path(data)).run
 
 
 def _listing(items: list[str]) -> str:

@@ -1,0 +1,210 @@
+"""``stealth-ns bench scan``: the scan's verdict on every run a ``bench attack`` folder holds, against
+what each run is (clean, or attacked with its poisoned views): a confusion table, the ROC of the
+largest group region as a score, and each run's row (docs/scan.md).
+
+A run is *poisoned* when it was trained with the attack or on a poisoned copy (data-only, IPA-Splat);
+the scan is *right* on a poisoned run when it calls it suspicious and every view it names is one of
+the run's poisoned views, or of their support views (docs/stealth.md: their training images show the
+poison too). The poisoned runs whose attack failed (the paper's rule, from the bench's
+results when measured) are kept apart: there may be no illusion to find in them.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stealth_ns.datasets.frames import frame_transforms
+from stealth_ns.datasets.source import inspect_folder
+from stealth_ns.defences.detection import detection_metrics
+from stealth_ns.errors import StealthNSError
+from stealth_ns.gaussian_ply import write_gaussian_ply
+from stealth_ns.gaussian_transform import transform_cloud
+from stealth_ns.json_io import json_safe, write_json_atomic
+from stealth_ns.runs.imported import ImportedModel, load_model
+from stealth_ns.runs.loaded import attack_record
+from stealth_ns.scan.config import ScanConfig
+from stealth_ns.scan.outputs import ground_truth
+from stealth_ns.scan.scanner import scan_model
+
+RESULTS_FILE = "scan-results.json"
+TABLE_FILE = "scan.md"
+ROC_FILE = "roc.png"
+
+
+def bench_runs(bench_output: Path) -> list[dict[str, Any]]:
+    """Every finished run of a ``bench attack`` folder (its results.json, or that file itself), with
+    its V-illusory and whether the attack succeeded."""
+    path = bench_output if bench_output.suffix == ".json" else bench_output / "results.json"
+    if not path.is_file():
+        raise StealthNSError(
+            f"{bench_output} holds no results.json: run `stealth-ns bench attack --output DIR` first"
+        )
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    runs = []
+    for key, run in doc.get("runs", {}).items():
+        config = Path(run.get("config", ""))
+        if not config.is_file() or not any((config.parent / "nerfstudio_models").glob("*.ckpt")):
+            continue
+        metrics = run.get("metrics") or {}
+        runs.append({"key": key, "scene": run["scene"], "clean": bool(run.get("clean")), "config": config,
+                     "label": run.get("label", key), "v_illusory": metrics.get("v_illusory_psnr"),
+                     "success": metrics.get("attack_success")})  # fmt: skip
+    return runs
+
+
+def as_foreign_ply(imported: ImportedModel, path: Path) -> Path:
+    """Write a loaded run's Gaussians to ``path`` as another trainer would: a 3DGS PLY in the dataset's
+    own frame, without the poison tag. Returns ``path``."""
+    run = imported.run
+    scene = inspect_folder("--data", str(run.data))
+    to_ns = frame_transforms(run.pipeline.datamanager.train_dataparser_outputs, scene)["dataset"]
+    cloud = transform_cloud(imported.cloud, np.linalg.inv(to_ns))
+    cloud.extra = {}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_gaussian_ply(path, cloud, comment="stealth-ns bench scan --as-ply")
+    return path
+
+
+def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> dict[str, Any]:
+    """One row: the scan's verdict on ``run`` and whether it is right; with ``ply``, the run is first
+    written there by :func:`as_foreign_ply` and that PLY is scanned on the run's dataset."""
+    t0 = time.perf_counter()
+    imported = load_model(run["config"])
+    record = None if run["clean"] else attack_record(imported.run, run["config"])
+    if ply is not None:
+        imported = load_model(as_foreign_ply(imported, ply), imported.run.data)
+    truth, support = [], []
+    if record is not None:
+        truth = [v.name for v in record.views]
+        if record.injection is not None:  # support views' training images show the poison too
+            support = sorted({s for names in record.injection.support_views.values() for s in names})
+    result = scan_model(imported, cfg)
+    named = [g.name for g in result.targeted]
+    failed = not run["clean"] and run["success"] is False
+    right = (not named) if run["clean"] else bool(named) and set(named) <= set(truth) | set(support)
+    return {
+        "run": run["key"],
+        "scene": run["scene"],
+        "label": run["label"],
+        "poisoned": not run["clean"],
+        "attack_failed": failed,
+        "v_illusory": run["v_illusory"],
+        "poisoned_views": truth,
+        "support_views": support,
+        "verdict": result.verdict,
+        "named_views": named,
+        "named_regions": {g.name: round(g.region.share, 5) for g in result.targeted},
+        "right": right,
+        "views_found": len(set(named) & set(truth)),
+        "largest_region": result.groups[0].region.share if result.groups else 0.0,
+        "gaussians": int(result.flagged.shape[0]),
+        "ground_truth": ground_truth(result),
+        "frame": imported.frame,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+
+
+def confusion(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """Counts over rows: clean runs called clean / suspicious; poisoned (successful) runs found with the
+    right views / found with a wrong view / missed; failed attacks called suspicious / clean."""
+    out = dict.fromkeys(("clean_clean", "clean_suspicious", "found", "wrong_view", "missed", "failed_found",
+                         "failed_clean"), 0)  # fmt: skip
+    for r in rows:
+        if not r["poisoned"]:
+            out["clean_clean" if r["verdict"] == "clean" else "clean_suspicious"] += 1
+        elif r["attack_failed"]:
+            out["failed_found" if r["verdict"] == "suspicious" else "failed_clean"] += 1
+        else:
+            out["found" if r["right"] else ("wrong_view" if r["verdict"] == "suspicious" else "missed")] += 1
+    return out
+
+
+def _support(row: dict[str, Any]) -> str:
+    support = row.get("support_views") or []
+    return f" (support: {', '.join(support)})" if support else ""
+
+
+def table_lines(rows: list[dict[str, Any]], cfg: ScanConfig) -> list[str]:
+    """scan.md: the rule, the confusion table, the ROC's AUROC and every run's row."""
+    c = confusion(rows)
+    scores = np.array([r["largest_region"] for r in rows if not r["attack_failed"]])
+    labels = np.array([r["poisoned"] for r in rows if not r["attack_failed"]])
+    auroc = detection_metrics(scores, labels)["auroc"]
+    lines = [
+        f"signals: {', '.join(cfg.signals)}; region threshold {cfg.region_threshold:.1%}",
+        "",
+        "| models | called clean | called suspicious |",
+        "|---|--:|--:|",
+        f"| clean | {c['clean_clean']} | {c['clean_suspicious']} |",
+        f"| poisoned, attack succeeded | {c['missed']} | {c['found']} right views, {c['wrong_view']} wrong |",
+        f"| poisoned, attack failed | {c['failed_clean']} | {c['failed_found']} |",
+        "",
+        "AUROC of the largest region as a model-level score (failed attacks left out): "
+        + ("n/a" if auroc is None else f"{auroc:.3f}"),
+        "",
+        "| run | poisoned views | V-illusory | verdict | views named | found | largest region | right | s |",
+        "|---|---|--:|---|---|--:|--:|:-:|--:|",
+    ]
+    for r in rows:
+        v = "–" if r["v_illusory"] is None else f"{r['v_illusory']:.2f}"
+        lines.append(
+            f"| {r['run']} | {', '.join(r['poisoned_views']) or 'clean'}{_support(r)} | {v} | "
+            f"{r['verdict']} | "
+            f"{', '.join(r['named_views']) or '–'} | {r.get('views_found', 0)}/{len(r['poisoned_views'])} | "
+            f"{100 * r['largest_region']:.2f}% | "
+            f"{'yes' if r['right'] else 'no'} | {r['seconds']:.0f} |"
+        )
+    return lines
+
+
+def plot_roc(path: Path, rows: list[dict[str, Any]]) -> None:
+    """The model-level ROC: the largest group region as a score of poisoned (attack succeeded) against
+    clean models; the default threshold marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import torch
+    from torchmetrics.functional.classification import binary_roc
+
+    from stealth_ns.defences.detection import rank_scores
+    from stealth_ns.figures import save_plot
+
+    kept = [r for r in rows if not r["attack_failed"]]
+    scores = np.array([r["largest_region"] for r in kept])
+    labels = torch.tensor([int(r["poisoned"]) for r in kept])
+    fig, ax = plt.subplots(figsize=(4.6, 4.2))
+    if 0 < int(labels.sum()) < len(kept):
+        fpr, tpr, _ = binary_roc(torch.from_numpy(rank_scores(scores)), labels, thresholds=None)
+        ax.plot(fpr.numpy(), tpr.numpy(), lw=1.5, marker="o", ms=3, label=f"{len(kept)} models")
+    ax.plot([0, 1], [0, 1], color="0.6", lw=0.8, ls="--")
+    save_plot(fig, ax, path, "clean models called suspicious", "poisoned models found", "stealth-ns scan")
+
+
+def run_bench_scan(
+    bench_output: Path, output: Path, cfg: ScanConfig, only: tuple[str, ...] = (), as_ply: bool = False
+) -> list[dict]:
+    """Scan every finished run of ``bench_output`` (or those whose key contains one of ``only``); write
+    OUTPUT/scan-results.json, OUTPUT/scan.md and OUTPUT/roc.png; returns the rows. ``as_ply``: scan
+    each run as a foreign PLY (:func:`as_foreign_ply`, written to OUTPUT/plys/) instead."""
+    runs = [r for r in bench_runs(bench_output) if not only or any(o in r["key"] for o in only)]
+    if not runs:
+        raise StealthNSError(
+            f"no finished run in {bench_output}" + (f" matches {', '.join(only)}" if only else "")
+        )
+    output.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for i, run in enumerate(runs, 1):
+        print(f"[{i}/{len(runs)}] scanning {run['key']}", flush=True)
+        ply = output / "plys" / (run["key"].replace("/", "_") + ".ply") if as_ply else None
+        rows.append(scan_run(run, cfg, ply))
+        print(f"  {rows[-1]['verdict']} {rows[-1]['named_views']} (right: {rows[-1]['right']})", flush=True)
+        write_json_atomic(output / RESULTS_FILE, json_safe({"config": vars(cfg), "rows": rows}))
+    (output / TABLE_FILE).write_text("\n".join(table_lines(rows, cfg)) + "\n", encoding="utf-8")
+    plot_roc(output / ROC_FILE, rows)
+    return rows

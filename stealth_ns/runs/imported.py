@@ -1,0 +1,221 @@
+"""A model from any trainer as a :class:`~stealth_ns.runs.loaded.LoadedRun`: a 3DGS PLY or a stock
+splatfacto run, loaded into a stealth-ns model on the dataset's cameras so that every tool that reads
+runs (scan, report) renders and scores it as it does our own.
+
+* **PLY** (the official 3DGS code, gsplat, OpenSplat, ``ns-export gaussian-splat``): read by
+  :mod:`stealth_ns.gaussian_ply`, moved into nerfstudio's frame from the frame it was trained in
+  (:mod:`stealth_ns.datasets.frames`; ``auto`` tries each and keeps the one whose renders match the
+  training images best), loaded into a ``stealth-splat-lite`` pipeline set up on ``--data``.
+* **nerfstudio run** (``config.yml``): a stealth-ns run loads as it is (:func:`load_run`); another
+  splatfacto-family run (stock ``splatfacto``, ``splatfacto-big``...) is read from its checkpoint's
+  Gaussians into a stealth-ns model on the same dataset (its cameras are in nerfstudio's frame).
+
+The loaded model renders on the CPU backend, or gsplat on CUDA, as our runs do.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from stealth_ns.attack.config import AttackConfig
+from stealth_ns.datasets.frames import FRAMES, frame_transforms
+from stealth_ns.datasets.source import SceneSource, inspect_folder
+from stealth_ns.defences.scores import frustum_depth_ratios
+from stealth_ns.errors import StealthNSError
+from stealth_ns.gaussian_ply import GaussianCloud, read_gaussian_ply
+from stealth_ns.gaussian_transform import transform_cloud
+from stealth_ns.metrics import psnr
+from stealth_ns.model import StealthSplatModel
+from stealth_ns.model_cloud import LOADED_STEP, cloud_of_model, cloud_of_params, load_cloud
+from stealth_ns.pipeline import rgb_float
+from stealth_ns.raster.projection import viewmat_from_c2w
+from stealth_ns.render_view import render_camera
+from stealth_ns.runs.loaded import LoadedRun, load_run
+
+#: The method whose model and pipeline hold an imported model (its renderer, its fine-tune rates).
+HOST_METHOD = "stealth-splat-lite"
+#: Training views rendered to tell the frames apart (evenly spaced).
+FRAME_TEST_VIEWS = 3
+#: Least share of the Gaussians that must sit in front of some training camera, inside its image.
+MIN_IN_VIEW = 0.5
+
+
+@dataclass
+class ImportedModel:
+    """A model under scan or report, from wherever it came."""
+
+    run: LoadedRun
+    kind: str
+    """"ply", "stealth-ns run" or "splatfacto run" (with the method's name)."""
+    cloud: GaussianCloud
+    """The Gaussians as read, in the model's own frame (the scan's cleaned PLY is written from them)."""
+    frame: str = "nerfstudio"
+    frame_match: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Each frame tried -> ``psnr`` (dB, mean over the test views) and ``in_view`` (share of Gaussians
+    inside some training view); empty when the frame was known."""
+
+
+def load_model(model: Path, data: Path | None = None, frame: str = "auto") -> ImportedModel:
+    """Load ``model`` (a PLY, a run's config.yml or run folder) on ``data`` (required for a PLY; a run's
+    own dataset by default). StealthNSError with one line for every problem."""
+    model = Path(model)
+    if frame not in ("auto", *FRAMES):
+        raise StealthNSError(f"--frame must be auto or one of {', '.join(FRAMES)}, got {frame!r}")
+    if model.suffix.lower() == ".ply":
+        if data is None:
+            raise StealthNSError(
+                f"--data is needed with a PLY ({model}): the dataset whose cameras it was trained on"
+            )
+        return _load_ply(model, data, frame)
+    config_path = model / "config.yml" if model.is_dir() else model
+    if not config_path.is_file():
+        raise StealthNSError(f"{model} is neither a PLY file nor a run (no config.yml)")
+    from stealth_ns.safe_config import load_config
+
+    config = load_config(config_path)
+    if frame not in ("auto", "nerfstudio"):
+        raise StealthNSError(f"--frame {frame}: a nerfstudio run is in nerfstudio's frame (give auto)")
+    if "StealthSplat" in type(config.pipeline.model).__name__:
+        run = load_run(config_path)
+        _check_same_data(run, data)
+        return ImportedModel(run, "stealth-ns run", cloud_of_model(run.model))
+    return _load_splatfacto_run(config_path, config, data)
+
+
+def _check_same_data(run: LoadedRun, data: Path | None) -> None:
+    if data is not None and Path(data).resolve() != run.data.resolve():
+        raise StealthNSError(
+            f"--data {data}: the run {run.config_path} was trained on {run.data} (leave --data out)"
+        )
+
+
+def host_config(scene: SceneSource, sh_degree: int = 3) -> Any:
+    """The ``TrainerConfig`` of :data:`HOST_METHOD` on ``scene`` (attack off), as ns-train would make it."""
+    from nerfstudio.data.dataparsers.blender_dataparser import BlenderDataParserConfig
+    from nerfstudio.data.dataparsers.colmap_dataparser import ColmapDataParserConfig
+
+    from stealth_ns.method_configs.registry import method_config
+
+    config = copy.deepcopy(method_config(HOST_METHOD))
+    dm = config.pipeline.datamanager
+    if scene.format == "colmap":
+        dm.dataparser = ColmapDataParserConfig(colmap_path=Path(str(scene.colmap_path)), downscale_factor=1)
+    elif scene.format == "blender":
+        dm.dataparser = BlenderDataParserConfig()
+        config.pipeline.model.background_color = "white"
+    dm.dataparser.data = scene.path
+    dm.data = scene.path
+    config.pipeline.attack = AttackConfig(enabled=False)
+    config.pipeline.model.sh_degree = max(3, sh_degree)
+    config.vis = "tensorboard"
+    return config
+
+
+def host_run(config: Any, label: Path) -> LoadedRun:
+    """Set up ``config``'s pipeline for evaluation (held-out split loaded, training images cached) as
+    a :class:`LoadedRun` named ``label``; its model's rows are to be replaced."""
+    from stealth_ns.poisoning.setup import setup_pipeline
+
+    pipeline = setup_pipeline(config, test_mode="test")
+    pipeline.eval()
+    pipeline.datamanager.cached_train  # noqa: B018 - caches (and undistorts) the training images
+    return LoadedRun(Path(label), pipeline, LOADED_STEP, config, None)
+
+
+def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
+    cloud = read_gaussian_ply(path)
+    scene = inspect_folder("--data", str(data))
+    run = host_run(host_config(scene), path)
+    transforms = frame_transforms(run.pipeline.datamanager.train_dataparser_outputs, scene)
+    if frame != "auto" and frame not in transforms:
+        raise StealthNSError(f"--frame {frame}: {data} has no such frame (it has {', '.join(transforms)})")
+    candidates = transforms if frame == "auto" else {frame: transforms[frame]}
+    # frames that coincide (a Blender dataset's own frame is nerfstudio's) are tried once
+    candidates = {k: m for i, (k, m) in enumerate(candidates.items())
+                  if not any(np.allclose(m, prev) for prev in list(candidates.values())[:i])}  # fmt: skip
+    match: dict[str, dict[str, float]] = {}
+    for name, matrix in candidates.items():
+        load_cloud(run.model, transform_cloud(cloud, matrix))
+        match[name] = frame_match(run)
+    usable = {k: v for k, v in match.items() if v["in_view"] >= MIN_IN_VIEW}
+    if not usable:
+        best = max(match, key=lambda k: match[k]["in_view"])
+        raise StealthNSError(
+            f"{path} does not match the cameras of {data}: in the best frame tried ({best}) only "
+            f"{match[best]['in_view']:.0%} of its Gaussians sit inside a training view (the model was "
+            "trained on another dataset, or in a frame stealth-ns does not know: docs/scan.md)"
+        )
+    chosen = max(usable, key=lambda k: usable[k]["psnr"])
+    if chosen != list(candidates)[-1]:
+        load_cloud(run.model, transform_cloud(cloud, candidates[chosen]))
+    return ImportedModel(run, "ply", cloud, chosen, match if frame == "auto" else {})
+
+
+@torch.no_grad()
+def frame_match(run: LoadedRun) -> dict[str, float]:
+    """How well the loaded model fits the run's training cameras: ``in_view``, the share of its centres
+    in front of some camera inside its image; ``psnr``, the mean PSNR (dB) of
+    :data:`FRAME_TEST_VIEWS` training views' renders against their images."""
+    model: StealthSplatModel = run.model
+    dm = run.pipeline.datamanager
+    cameras = dm.train_dataset.cameras
+    sizes = torch.stack([cameras.width[:, 0], cameras.height[:, 0]], dim=1).double().numpy()
+    ratios = frustum_depth_ratios(
+        model.means.detach().double().cpu().numpy(),
+        viewmat_from_c2w(cameras.camera_to_worlds.float()).double().numpy(),
+        cameras.get_intrinsics_matrices().double().numpy(),
+        sizes,
+        np.ones(len(cameras)),
+    )
+    views = np.unique(np.linspace(0, len(cameras) - 1, FRAME_TEST_VIEWS).round().astype(int))
+    scores = []
+    for v in views:
+        out = render_camera(model, cameras[int(v) : int(v) + 1])
+        gt = model.composite_with_background(model.get_gt_img(dm.cached_train[v]["image"]), out["background"])
+        scores.append(min(psnr(out["rgb"].float().cpu(), rgb_float(gt.cpu())), 99.0))
+    return {"psnr": round(float(np.mean(scores)), 2), "in_view": round(float(np.isfinite(ratios).mean()), 4)}
+
+
+def _load_splatfacto_run(config_path: Path, config: Any, data: Path | None) -> ImportedModel:
+    """A splatfacto-family run not trained by stealth-ns: its checkpoint's Gaussians in our model."""
+    model_cfg = config.pipeline.model
+    if not hasattr(model_cfg, "sh_degree") or "splatfacto" not in str(config.method_name):
+        raise StealthNSError(
+            f"{config_path} was trained with {config.method_name!r}, not a Gaussian-splatting method "
+            "(export a PLY of its Gaussians, or give a splatfacto or stealth-splat run)"
+        )
+    checkpoint = _latest_checkpoint(config_path.parent / "nerfstudio_models")
+    try:
+        state = torch.load(checkpoint, map_location="cpu", weights_only=True)["pipeline"]
+    except Exception as err:
+        raise StealthNSError(
+            f"cannot read the checkpoint {checkpoint}: {type(err).__name__}: {err}"
+        ) from None
+    prefix = next((p for p in ("_model.gauss_params.", "model.gauss_params.") if f"{p}means" in state), None)
+    if prefix is None:
+        raise StealthNSError(f"{checkpoint} holds no Gaussians (no gauss_params.means)")
+    params = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
+    cloud = cloud_of_params(params, int(model_cfg.sh_degree))
+    dataset = Path(data) if data is not None else Path(config.pipeline.datamanager.data or "")
+    host = host_config(inspect_folder("--data", str(dataset)), cloud.sh_degree)
+    host.pipeline.datamanager.dataparser = copy.deepcopy(config.pipeline.datamanager.dataparser)
+    host.pipeline.datamanager.dataparser.data = dataset
+    host.pipeline.model.background_color = model_cfg.background_color
+    run = host_run(host, config_path)
+    load_cloud(run.model, cloud)
+    return ImportedModel(run, f"splatfacto run ({config.method_name})", cloud)
+
+
+def _latest_checkpoint(folder: Path) -> Path:
+    checkpoints = sorted(folder.glob("step-*.ckpt")) if folder.is_dir() else []
+    if not checkpoints:
+        raise StealthNSError(
+            f"{folder.parent} has no checkpoint (nerfstudio_models/step-*.ckpt): not trained?"
+        )
+    return checkpoints[-1]

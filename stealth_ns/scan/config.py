@@ -1,0 +1,85 @@
+"""Options of ``stealth-ns scan`` (a plain dataclass), each default with where it comes from."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from stealth_ns.defences.config import DefendConfig
+from stealth_ns.scan.verdict import EffectRule
+
+#: The per-Gaussian signals the scan can flag with (the post-hoc defences that need no ground truth).
+SIGNALS: tuple[str, ...] = ("view-support", "camera-proximity", "grad-concentration")
+
+
+@dataclass
+class ScanConfig:
+    """What flags a Gaussian and when a group of flagged Gaussians makes a model suspicious."""
+
+    signals: tuple[str, ...] = ("view-support", "camera-proximity")
+    """Per-Gaussian signals; a Gaussian is flagged when any of them flags it (defend's scores).
+    grad-concentration (a short fine-tune over every view, the slowest) only on request."""
+    concentration_threshold: float = 0.5
+    """view-support / grad-concentration flag a Gaussian seen by fewer than 1/threshold effective
+    views (defend's default: 2 views)."""
+    proximity_threshold: float = 0.3
+    """camera-proximity flags a Gaussian nearer a training camera that has it in view than this share
+    of the camera's median scene depth. Looser than defend's 0.15 (which prunes no clean Gaussian):
+    the verdict's region test, not the flag, keeps clean models clean, and at 0.15 the support-views
+    variant's poison on ``orbit`` (placed deeper, for K + 1 views to see it) was flagged at 13 % only
+    and missed (docs/scan.md)."""
+    min_group: int = 5
+    """Fewest flagged Gaussians that make a group worth rendering (fewer cannot cover a region)."""
+    opaque: float = 0.5
+    """A pixel is covered when the group alone, and the model without it, both exceed this opacity."""
+    depth_ratio: float = 0.5
+    """...and the group's expected depth is below this share of the rest's there (it floats in front
+    of a surface)..."""
+    near_ratio: float = 0.3
+    """...and below this share of the view's median scene depth (it floats near the camera). Measured
+    (docs/scan.md): the poison's pixels sit at 0.03-0.22 of it, the edge of a capture that one view
+    sees alone (the rearmost view of a forward trajectory) at 0.37-1.0."""
+    colour_change: float = 0.1
+    """...and removing the group changes one of its colour channels by more than this (in [0, 1])."""
+    region_threshold: float = 0.005
+    """A view is targeted when its group's largest connected effect covers this share of the image.
+    Measured (docs/scan.md): the clean models' largest region is at most 0.11 % of a view, the
+    poisoned models' at least 1.65 %; 0.5 % sits between them, about as far from each (a factor of 3-5)."""
+    frame: str = "auto"
+    """World frame of a PLY: auto (each known frame tried, the best-matching kept), nerfstudio
+    (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat) or colmap (docs/scan.md)."""
+    seed: int = 0
+    """Seed of grad-concentration's fine-tune order (everything else is deterministic)."""
+
+    def defend_config(self) -> DefendConfig:
+        """The same rules as ``stealth-ns defend`` applies them."""
+        return DefendConfig(
+            defences=self.signals,
+            concentration_threshold=self.concentration_threshold,
+            proximity_threshold=self.proximity_threshold,
+            seed=self.seed,
+        )
+
+    def effect_rule(self) -> EffectRule:
+        return EffectRule(self.opaque, self.depth_ratio, self.near_ratio, self.colour_change)
+
+    def validate(self) -> None:
+        """ValueError naming the option when a value is out of range or unknown."""
+        unknown = [s for s in self.signals if s not in SIGNALS]
+        if unknown or not self.signals:
+            raise ValueError(
+                f"--signals: {'unknown signal ' + repr(unknown[0]) if unknown else 'none given'}; "
+                f"choose from {', '.join(SIGNALS)}"
+            )
+        checks = (
+            ("--concentration-threshold", 0.0 < self.concentration_threshold <= 1.0, "in (0, 1]"),
+            ("--proximity-threshold", self.proximity_threshold > 0, "positive"),
+            ("--min-group", self.min_group >= 1, "at least 1"),
+            ("--opaque", 0.0 <= self.opaque < 1.0, "in [0, 1)"),
+            ("--colour-change", 0.0 <= self.colour_change < 1.0, "in [0, 1)"),
+            ("--depth-ratio", 0.0 < self.depth_ratio <= 1.0, "in (0, 1]"),
+            ("--near-ratio", self.near_ratio > 0, "positive"),
+            ("--region-threshold", 0.0 < self.region_threshold <= 1.0, "in (0, 1]"),
+        )
+        for name, ok, rule in checks:
+            if not ok:
+                raise ValueError(f"{name} must be {rule}, got {getattr(self, name[2:].replace('-', '_'))}")

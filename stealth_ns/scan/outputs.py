@@ -1,0 +1,157 @@
+"""The files of ``stealth-ns scan``: scan.json, scan.html with its images, the cleaned model.
+
+* ``scan.json``: the verdict, the targeted views (region share, pixels, box, Gaussians), every
+  rendered group, each signal's rule and count, the model (kind, frame and how each frame matched),
+  timings; and, when the model carries stealth-ns's poison tag (our runs, their ``ns-export`` PLYs),
+  how the scan compares with it (``ground_truth``: never used by the verdict);
+* ``images/VIEW_{full,without,flagged,effect}.png`` per targeted view, and ``scan.html``;
+* the cleaned model without the targeted groups: ``cleaned.ply`` in the input's own frame (every
+  input), and for a nerfstudio run also ``cleaned/`` (a nerfstudio run: ``ns-eval``, ``ns-viewer``).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from stealth_ns.defences import detection
+from stealth_ns.defences.pruned_run import write_pruned_run
+from stealth_ns.gaussian_ply import write_gaussian_ply
+from stealth_ns.html_page import render_page
+from stealth_ns.image_io import save_png
+from stealth_ns.json_io import json_safe, write_json_atomic
+from stealth_ns.provenance import software_and_hardware
+from stealth_ns.scan.scanner import Group, ScanResult
+
+SCAN_FILE = "scan.json"
+HTML_FILE = "scan.html"
+CLEANED_PLY = "cleaned.ply"
+CLEANED_RUN = "cleaned"
+IMAGES = ("full", "without", "flagged", "effect")
+
+
+def _slug(name: str) -> str:
+    """A view's name (``images/frame_00030.png``) as a file-name stem (``images_frame_00030``)."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in str(Path(name).with_suffix("")))
+
+
+def group_entry(group: Group) -> dict[str, Any]:
+    r = group.region
+    return {
+        "view": group.view,
+        "name": group.name,
+        "gaussians": int(group.members.sum()),
+        "region_share": round(r.share, 5),
+        "region_pixels": r.pixels,
+        "region_box": list(r.box),
+        "targeted": group.targeted,
+    }
+
+
+def ground_truth(result: ScanResult) -> dict[str, Any] | None:
+    """How the scan compares with the poison tag the model carries, or None without one."""
+    tag = result.model.cloud.extra.get("poison")
+    if tag is None or len(tag) != len(result.flagged):
+        return None
+    poison = np.asarray(tag) > 0
+    removed = result.removed
+    return {
+        "n_poison": int(poison.sum()),
+        "flagged_poison": int((result.flagged & poison).sum()),
+        "flagged_clean": int((result.flagged & ~poison).sum()),
+        "removed_poison": int((removed & poison).sum()),
+        "removed_clean": int((removed & ~poison).sum()),
+        "auroc": {
+            n: detection.detection_metrics(s.scores, poison)["auroc"] for n, s in result.scored.items()
+        },
+    }
+
+
+def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str, Any]:
+    """scan.json's content."""
+    imported, cfg = result.model, result.config
+    return {
+        "verdict": result.verdict,
+        "targeted_views": [group_entry(g) for g in result.targeted],
+        "rule": (
+            f"suspicious when the flagged Gaussians one view sees most cover, connected, at least "
+            f"{cfg.region_threshold:.1%} of that view where the rest of the model is opaque and their "
+            f"removal changes the colour by more than {cfg.colour_change:g}"
+        ),
+        "model": {
+            "path": str(model_path),
+            "kind": imported.kind,
+            "gaussians": len(imported.cloud),
+            "sh_degree": imported.cloud.sh_degree,
+            "frame": imported.frame,
+            "frame_match": imported.frame_match,
+        },
+        "data": str(data),
+        "training_views": len(result.model.run.pipeline.datamanager.train_dataset),
+        "signals": {
+            n: {"rule": s.rule, "flagged": int(s.pruned.sum()), "seconds": s.seconds}
+            for n, s in result.scored.items()
+        },
+        "flagged": int(result.flagged.sum()),
+        "removed": int(result.removed.sum()),
+        "groups": [group_entry(g) for g in result.groups],
+        "ground_truth": ground_truth(result),
+        "config": {k: v for k, v in vars(cfg).items()},
+        "seconds": result.seconds,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "software": software_and_hardware(),
+    }
+
+
+def write_images(result: ScanResult, output: Path) -> dict[str, dict[str, str]]:
+    """Each targeted view's renders -> ``images/``; returns view name -> kind -> path (relative)."""
+    (output / "images").mkdir(parents=True, exist_ok=True)
+    files = {}
+    for g in result.targeted:
+        files[g.name] = {}
+        for kind in IMAGES:
+            rel = f"images/{_slug(g.name)}_{kind}.png"
+            image = g.renders[kind]
+            save_png(output / rel, image.astype(np.float32) if image.dtype == bool else image)
+            files[g.name][kind] = rel
+    return files
+
+
+def write_cleaned(result: ScanResult, output: Path) -> dict[str, str]:
+    """The model without the targeted groups: cleaned.ply, and a nerfstudio run for a run input."""
+    keep = ~result.removed
+    imported = result.model
+    written = {"ply": CLEANED_PLY}
+    write_gaussian_ply(output / CLEANED_PLY, imported.cloud.subset(keep), comment="stealth-ns scan: cleaned")
+    checkpoint = imported.run.checkpoint
+    if checkpoint is not None:
+        info = {
+            "defence": "scan",
+            "removed": int(result.removed.sum()),
+            "views": [g.name for g in result.targeted],
+        }
+        config = write_pruned_run(
+            imported.run.config_path, checkpoint, torch.from_numpy(keep), output, CLEANED_RUN, info
+        )
+        written["run"] = str(config.relative_to(output))
+    return written
+
+
+def render_html(doc: dict[str, Any]) -> str:
+    """``scan.html`` from scan.json's content (jinja2, autoescaped, images relative)."""
+    return render_page("stealth_ns.scan", "scan.html.j2", s=doc)
+
+
+def write_outputs(result: ScanResult, output: Path, model_path: Path, data: Path) -> dict[str, Any]:
+    """Every file of the scan into ``output``; returns scan.json's content."""
+    output.mkdir(parents=True, exist_ok=True)
+    doc = scan_document(result, model_path, data)
+    doc["images"] = write_images(result, output)
+    doc["cleaned"] = write_cleaned(result, output)
+    write_json_atomic(output / SCAN_FILE, json_safe(doc))
+    (output / HTML_FILE).write_text(render_html(doc), encoding="utf-8")
+    return doc
