@@ -18,9 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from stealth_ns.attack.record import AttackRecord
 from stealth_ns.datasets.frames import frame_transforms
 from stealth_ns.datasets.source import inspect_folder
 from stealth_ns.defences.detection import detection_metrics
+from stealth_ns.defend.evaluate import Evaluator, target_of
+from stealth_ns.defend.rule import DEFEAT_V_ILLUSORY, DEFEAT_V_TEST_COST
 from stealth_ns.errors import StealthNSError
 from stealth_ns.gaussian_ply import write_gaussian_ply
 from stealth_ns.gaussian_transform import transform_cloud
@@ -105,7 +108,22 @@ def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> d
         "gaussians": int(result.flagged.shape[0]),
         "ground_truth": ground_truth(result),
         "frame": imported.frame,
+        "cleaned": None if record is None else cleaning_effect(imported, record, result.removed),
         "seconds": round(time.perf_counter() - t0, 1),
+    }
+
+
+def cleaning_effect(imported: ImportedModel, record: AttackRecord, removed: np.ndarray) -> dict[str, Any]:
+    """What the scan's cleaned model does to the attack (defend's measure): V-illusory (dB) before and
+    after removing ``removed``, the held-out PSNR it costs, and whether that defeats the attack."""
+    evaluate = Evaluator(target_of(imported.run, record))
+    before, after = evaluate(None), evaluate(removed)
+    cost = before["v_test_psnr"] - after["v_test_psnr"]
+    return {
+        "v_illusory_before": before["v_illusory_psnr"],
+        "v_illusory_after": after["v_illusory_psnr"],
+        "v_test_cost": cost,
+        "defeats_attack": bool(after["v_illusory_psnr"] < DEFEAT_V_ILLUSORY and cost <= DEFEAT_V_TEST_COST),
     }
 
 
@@ -122,6 +140,13 @@ def confusion(rows: list[dict[str, Any]]) -> dict[str, int]:
         else:
             out["found" if r["right"] else ("wrong_view" if r["verdict"] == "suspicious" else "missed")] += 1
     return out
+
+
+def _cleaned(row: dict[str, Any]) -> str:
+    c = row.get("cleaned")
+    if not c or c["v_illusory_after"] is None:
+        return "– | –"
+    return f"{c['v_illusory_after']:.2f} | {c['v_test_cost']:.2f}"
 
 
 def _support(row: dict[str, Any]) -> str:
@@ -147,8 +172,9 @@ def table_lines(rows: list[dict[str, Any]], cfg: ScanConfig) -> list[str]:
         "AUROC of the largest region as a model-level score (failed attacks left out): "
         + ("n/a" if auroc is None else f"{auroc:.3f}"),
         "",
-        "| run | poisoned views | V-illusory | verdict | views named | found | largest region | right | s |",
-        "|---|---|--:|---|---|--:|--:|:-:|--:|",
+        "| run | poisoned views | V-illusory | verdict | views named | found | largest region | right | "
+        "V-illusory after cleaning | V-test cost | s |",
+        "|---|---|--:|---|---|--:|--:|:-:|--:|--:|--:|",
     ]
     for r in rows:
         v = "–" if r["v_illusory"] is None else f"{r['v_illusory']:.2f}"
@@ -156,8 +182,8 @@ def table_lines(rows: list[dict[str, Any]], cfg: ScanConfig) -> list[str]:
             f"| {r['run']} | {', '.join(r['poisoned_views']) or 'clean'}{_support(r)} | {v} | "
             f"{r['verdict']} | "
             f"{', '.join(r['named_views']) or '–'} | {r.get('views_found', 0)}/{len(r['poisoned_views'])} | "
-            f"{100 * r['largest_region']:.2f}% | "
-            f"{'yes' if r['right'] else 'no'} | {r['seconds']:.0f} |"
+            f"{100 * r['largest_region']:.2f}% | {'yes' if r['right'] else 'no'} | {_cleaned(r)} | "
+            f"{r['seconds']:.0f} |"
         )
     return lines
 

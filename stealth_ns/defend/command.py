@@ -165,6 +165,11 @@ def run_defend(
 def clean_reference(target: Target, clean: Path) -> dict[str, Any]:
     """The clean run's V-test PSNR and V-illusory (what a perfect defence could reach), same renders."""
     clean_run = load_run(clean)
+    if clean_run.attack_enabled:
+        raise StealthNSError(
+            f"--clean {clean} was trained with the attack on; train the clean run with "
+            "--pipeline.attack.enabled False (or any other splatting method)"
+        )
     pair = RunPair(target.run, clean_run, target.record)
     pair.check_same_dataset()
     evaluate = Evaluator(target, clean_run)
@@ -196,17 +201,6 @@ def _config_of(given: Path) -> Path:
 
 
 def _check_clean(run: Path, clean: Path) -> None:
-    """``--clean`` must be another run, trained without the attack (as ``report`` requires)."""
-    from stealth_ns.safe_config import load_config
-
-    config = _config_of(clean)
-    if config == _config_of(run):
+    """``--clean`` must be another run than the attacked one (as ``report`` requires)."""
+    if _config_of(clean) == _config_of(run):
         raise StealthNSError(f"--clean {clean} is the attacked run itself: give a clean run of its scene")
-    if not config.is_file():
-        raise StealthNSError(f"no run config at {config} (--clean: give the config.yml of a clean run)")
-    attack = getattr(load_config(config).pipeline, "attack", None)
-    if attack is not None and attack.enabled:
-        raise StealthNSError(
-            f"--clean {clean} was trained with the attack on; train the clean run with "
-            "--pipeline.attack.enabled False (or any other splatting method)"
-        )

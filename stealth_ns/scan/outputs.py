@@ -79,8 +79,9 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
         "targeted_views": [group_entry(g) for g in result.targeted],
         "rule": (
             f"suspicious when the flagged Gaussians one view sees most cover, connected, at least "
-            f"{cfg.region_threshold:.1%} of that view where the rest of the model is opaque and their "
-            f"removal changes the colour by more than {cfg.colour_change:g}"
+            f"{cfg.region_threshold:.1%} of that view, floating in front of what the rest of the model shows "
+            f"there (below {cfg.depth_ratio:g} of its depth and {cfg.near_ratio:g} of the view's median "
+            f"scene depth) and changing its colour by more than {cfg.colour_change:g}"
         ),
         "model": {
             "path": str(model_path),
