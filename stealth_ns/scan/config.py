@@ -40,10 +40,11 @@ class ScanConfig:
     sees alone (the rearmost view of a forward trajectory) at 0.37-1.0."""
     colour_change: float = 0.1
     """...and removing the group changes one of its colour channels by more than this (in [0, 1])."""
-    region_threshold: float = 0.005
+    region_threshold: float = 0.01
     """A view is targeted when its group's largest connected effect covers this share of the image.
-    Measured (docs/scan.md): the clean models' largest region is at most 0.11 % of a view, the
-    poisoned models' at least 1.65 %; 0.5 % sits between them, about as far from each (a factor of 3-5)."""
+    Measured (docs/scan.md): a clean model's largest region is at most 0.11 % of a view, a successful
+    attack's at least 1.65 %; at 0.5 % innocent views were named beside the poisoned one (their regions
+    0.53 % and more), at 2 % a successful support-views attack was missed."""
     frame: str = "auto"
     """World frame of a PLY: auto (each known frame tried, the best-matching kept), nerfstudio
     (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat) or colmap (docs/scan.md)."""
