@@ -81,15 +81,17 @@ def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> d
     record = None if run["clean"] else attack_record(imported.run, run["config"])
     if ply is not None:
         imported = load_model(as_foreign_ply(imported, ply), imported.run.data)
-    truth, support = [], []
+    truth, support, tampered = [], [], set()
     if record is not None:
         truth = [v.name for v in record.views]
         if record.injection is not None:  # support views' training images show the poison too
             support = sorted({s for names in record.injection.support_views.values() for s in names})
+        # by training index: a poisoned copy may name a view's file otherwise (external/images/...)
+        tampered = {v.index for v in record.views} | set(record.support_targets)
     result = scan_model(imported, cfg)
     named = [g.name for g in result.targeted]
     failed = not run["clean"] and run["success"] is False
-    right = (not named) if run["clean"] else bool(named) and set(named) <= set(truth) | set(support)
+    right = (not named) if run["clean"] else bool(named) and {g.view for g in result.targeted} <= tampered
     return {
         "run": run["key"],
         "scene": run["scene"],
@@ -103,7 +105,9 @@ def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> d
         "named_views": named,
         "named_regions": {g.name: round(g.region.share, 5) for g in result.targeted},
         "right": right,
-        "views_found": len(set(named) & set(truth)),
+        "views_found": len({g.view for g in result.targeted} & {v.index for v in record.views})
+        if record
+        else 0,
         "largest_region": result.groups[0].region.share if result.groups else 0.0,
         "gaussians": int(result.flagged.shape[0]),
         "ground_truth": ground_truth(result),

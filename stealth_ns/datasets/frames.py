@@ -9,9 +9,9 @@ frame          what is in it
 =============  ======================================================================================
 nerfstudio     nerfstudio's runs and ``ns-export gaussian-splat`` PLYs (exported as trained)
 dataset        the frame of the dataset's own poses and seed points: a Blender or nerfstudio-data
-               ``transforms.json``'s, a COLMAP model's. The official 3DGS code and OpenSplat train
-               in it (they read the poses as given); gsplat's ``simple_trainer`` does on COLMAP data
-               when run with ``--no-normalize-world-space``
+               ``transforms.json``'s, a COLMAP model's. The official 3DGS code trains in it (it
+               reads the poses as given), OpenSplat with ``--keep-crs`` and gsplat's
+               ``simple_trainer`` with ``--no-normalize-world-space`` (by default both normalise)
 colmap         (nerfstudio-data converted from COLMAP by ``ns-process-data``, which records an
                ``applied_transform``) the original COLMAP model's frame, for a model trained on the
                ``colmap/sparse/0`` the conversion kept

@@ -47,7 +47,8 @@ class ScanConfig:
     0.53 % and more), at 2 % a successful support-views attack was missed."""
     frame: str = "auto"
     """World frame of a PLY: auto (each known frame tried, the best-matching kept), nerfstudio
-    (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat) or colmap (docs/scan.md)."""
+    (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat --keep-crs) or colmap
+    (docs/scan.md)."""
     seed: int = 0
     """Seed of grad-concentration's fine-tune order (everything else is deterministic)."""
 
