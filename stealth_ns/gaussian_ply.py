@@ -28,7 +28,9 @@ import numpy as np
 from stealth_ns.errors import StealthNSError
 
 REQUIRED: tuple[str, ...] = (
-    *(f"{a}" for a in "xyz"),
+    "x",
+    "y",
+    "z",
     *(f"f_dc_{i}" for i in range(3)),
     "opacity",
     *(f"scale_{i}" for i in range(3)),

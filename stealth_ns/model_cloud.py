@@ -67,6 +67,5 @@ def load_cloud(model: StealthSplatModel, cloud: GaussianCloud) -> None:
     }
     for name, values in rows.items():
         state[f"gauss_params.{name}"] = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
-    model.load_state_dict(state)
-    model.to(model.device)
+    model.load_state_dict(state)  # splatfacto's resizes every row to the state's count, on the model's device
     model.step = LOADED_STEP

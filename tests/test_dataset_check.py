@@ -80,10 +80,12 @@ def test_a_good_dataset_passes(tiny_orbit_scene, capsys):
     assert "seed points in sparse_pc.ply" in out
 
 
-@pytest.mark.parametrize("case", list(MUTATIONS))
-def test_broken_dataset_is_one_line_naming_file_and_frame(scene, case, capsys):
+def _refused_in_one_line(scene: Path, mutation: tuple, capsys) -> str:
+    """Break ``scene`` with ``mutation`` ``(mutate, needles)``: the check refuses it with one line that
+    holds every needle (``{i}``: the frame's index), and ``check-data`` prints that line on stderr and
+    exits 1. Returns the line."""
     index = _frame_index(scene, IMAGE)
-    mutate, needles = MUTATIONS[case]
+    mutate, needles = mutation
     mutate(scene)
     with pytest.raises(StealthNSError) as info:
         check_dataset(scene)
@@ -91,11 +93,16 @@ def test_broken_dataset_is_one_line_naming_file_and_frame(scene, case, capsys):
     assert "\n" not in message
     for needle in needles:
         assert needle.format(i=index) in message, message
-    # the command: the same line on stderr, exit status 1
     with pytest.raises(SystemExit) as exc:
         main(["check-data", "--data", str(scene)])
     assert exc.value.code == 1
     assert capsys.readouterr().err.strip() == f"stealth-ns: error: {message}"
+    return message
+
+
+@pytest.mark.parametrize("case", list(MUTATIONS))
+def test_broken_dataset_is_one_line_naming_file_and_frame(scene, case, capsys):
+    _refused_in_one_line(scene, MUTATIONS[case], capsys)
 
 
 @pytest.mark.parametrize("case", ["missing transforms", "truncated image", "nan pose"])
@@ -216,19 +223,8 @@ UNUSABLE = {
 
 @pytest.mark.parametrize("case", list(UNUSABLE))
 def test_unusable_dataset_is_one_line(scene, case, capsys):
-    index = _frame_index(scene, IMAGE)
-    mutate, needles = UNUSABLE[case]
-    mutate(scene)
-    with pytest.raises(StealthNSError) as info:
-        check_dataset(scene)
-    message = str(info.value)
-    assert "\n" not in message and message.startswith(str(scene)), message
-    for needle in needles:
-        assert needle.format(i=index) in message, message
-    with pytest.raises(SystemExit) as exc:
-        main(["check-data", "--data", str(scene)])
-    assert exc.value.code == 1
-    assert capsys.readouterr().err.strip() == f"stealth-ns: error: {message}"
+    message = _refused_in_one_line(scene, UNUSABLE[case], capsys)
+    assert message.startswith(str(scene)), message
 
 
 @pytest.mark.parametrize("case", ["w/h do not match", "fl_x 1e308", "ply with 1 point", "ply nan point"])

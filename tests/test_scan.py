@@ -262,19 +262,23 @@ def test_a_stock_splatfacto_run_is_read_from_its_checkpoint(tiny_run_pair, tmp_p
     config = load_config(ours)
     config.method_name = "splatfacto"
     config.pipeline.model = SplatfactoModelConfig(sh_degree=config.pipeline.model.sh_degree)
-    config.pipeline.datamanager.data = config.pipeline.datamanager.dataparser.data
+    config.pipeline.datamanager.data = None  # a stock run's dataset is its dataparser's --data
     folder = tmp_path / "splatfacto-run"
     shutil.copytree(ours.parent / "nerfstudio_models", folder / "nerfstudio_models")
     (folder / "config.yml").write_text(yaml.dump(config))
     theirs = load_model(folder / "config.yml")
     assert theirs.kind == "splatfacto run (splatfacto)"
+    assert theirs.run.checkpoint is not None  # the scan's cleaned run is written from it
     reference = load_model(ours)
     cameras = reference.run.pipeline.datamanager.train_dataset.cameras
     assert np.allclose(render(theirs.run, cameras, 2), render(reference.run, cameras, 2), atol=1e-5)
 
 
 def test_the_verdict_counts_a_connected_region_in_front_of_an_opaque_scene():
-    from stealth_ns.scan.verdict import EffectRule, RenderedView, effect_mask, groups_by_view, largest_region
+    from stealth_ns.scan.config import ScanConfig
+    from stealth_ns.scan.verdict import RenderedView, effect_mask, groups_by_view, largest_region
+
+    rule = ScanConfig().effect_rule()
 
     weights = np.array([[0.0, 5.0, 1.0], [2.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 1.0, 3.0]])
     flagged = np.array([True, True, True, False])
@@ -291,14 +295,14 @@ def test_the_verdict_counts_a_connected_region_in_front_of_an_opaque_scene():
     full_rgb[group_alpha > 0] = 0.9
     full = RenderedView(full_rgb, np.ones((h, w)), scene.depth)
     near = RenderedView(full_rgb, group_alpha, np.full((h, w), 0.5))  # at 1/8 of the scene depth
-    region = largest_region(effect_mask(full, scene, near, scene_depth=4.0))
+    region = largest_region(effect_mask(full, scene, near, 4.0, rule))
     assert region.pixels == 16 and region.box == (3, 2, 6, 5) and region.share == pytest.approx(16 / 120)
     far = RenderedView(full_rgb, group_alpha, np.full((h, w), 3.0))  # at the scene's depth: an edge
-    assert not effect_mask(full, scene, far, scene_depth=4.0).any()
+    assert not effect_mask(full, scene, far, 4.0, rule).any()
     nothing_behind = RenderedView(scene.rgb, np.zeros((h, w)), scene.depth)
-    assert not effect_mask(full, nothing_behind, near, scene_depth=4.0).any()
+    assert not effect_mask(full, nothing_behind, near, 4.0, rule).any()
     same_colour = RenderedView(scene.rgb, np.ones((h, w)), scene.depth)
-    assert not effect_mask(same_colour, scene, near, scene_depth=4.0, cfg=EffectRule(colour_change=0.1)).any()
+    assert not effect_mask(same_colour, scene, near, 4.0, rule).any()
     assert largest_region(np.zeros((3, 3), bool)).share == 0.0
 
 

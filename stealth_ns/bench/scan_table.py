@@ -22,8 +22,7 @@ from stealth_ns.attack.record import AttackRecord
 from stealth_ns.datasets.frames import frame_transforms
 from stealth_ns.datasets.source import inspect_folder
 from stealth_ns.defences.detection import detection_metrics
-from stealth_ns.defend.evaluate import Evaluator, target_of
-from stealth_ns.defend.rule import DEFEAT_V_ILLUSORY, DEFEAT_V_TEST_COST
+from stealth_ns.defend.evaluate import Evaluator, defeat_metrics, target_of
 from stealth_ns.errors import StealthNSError
 from stealth_ns.gaussian_ply import write_gaussian_ply
 from stealth_ns.gaussian_transform import transform_cloud
@@ -81,17 +80,19 @@ def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> d
     record = None if run["clean"] else attack_record(imported.run, run["config"])
     if ply is not None:
         imported = load_model(as_foreign_ply(imported, ply), imported.run.data)
-    truth, support, tampered = [], [], set()
+    truth, support, poisoned, tampered = [], [], set(), set()
     if record is not None:
         truth = [v.name for v in record.views]
         if record.injection is not None:  # support views' training images show the poison too
             support = sorted({s for names in record.injection.support_views.values() for s in names})
         # by training index: a poisoned copy may name a view's file otherwise (external/images/...)
-        tampered = {v.index for v in record.views} | set(record.support_targets)
+        poisoned = {v.index for v in record.views}
+        tampered = poisoned | set(record.support_targets)
     result = scan_model(imported, cfg)
     named = [g.name for g in result.targeted]
+    named_views = {g.view for g in result.targeted}
     failed = not run["clean"] and run["success"] is False
-    right = (not named) if run["clean"] else bool(named) and {g.view for g in result.targeted} <= tampered
+    right = (not named) if run["clean"] else bool(named) and named_views <= tampered
     return {
         "run": run["key"],
         "scene": run["scene"],
@@ -105,9 +106,7 @@ def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> d
         "named_views": named,
         "named_regions": {g.name: round(g.region.share, 5) for g in result.targeted},
         "right": right,
-        "views_found": len({g.view for g in result.targeted} & {v.index for v in record.views})
-        if record
-        else 0,
+        "views_found": len(named_views & poisoned),
         "largest_region": result.groups[0].region.share if result.groups else 0.0,
         "gaussians": int(result.flagged.shape[0]),
         "ground_truth": ground_truth(result),
@@ -118,16 +117,16 @@ def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> d
 
 
 def cleaning_effect(imported: ImportedModel, record: AttackRecord, removed: np.ndarray) -> dict[str, Any]:
-    """What the scan's cleaned model does to the attack (defend's measure): V-illusory (dB) before and
-    after removing ``removed``, the held-out PSNR it costs, and whether that defeats the attack."""
+    """What the scan's cleaned model does to the attack, as defend measures a cut: V-illusory (dB)
+    before and after removing ``removed``, the held-out PSNR it costs, whether that defeats the attack."""
     evaluate = Evaluator(target_of(imported.run, record))
-    before, after = evaluate(None), evaluate(removed)
-    cost = before["v_test_psnr"] - after["v_test_psnr"]
+    before = evaluate(None)
+    after = defeat_metrics(evaluate, before, removed)
     return {
         "v_illusory_before": before["v_illusory_psnr"],
         "v_illusory_after": after["v_illusory_psnr"],
-        "v_test_cost": cost,
-        "defeats_attack": bool(after["v_illusory_psnr"] < DEFEAT_V_ILLUSORY and cost <= DEFEAT_V_TEST_COST),
+        "v_test_cost": after["v_test_cost"],
+        "defeats_attack": after["defeats_attack"],
     }
 
 

@@ -64,6 +64,17 @@ class CameraGeometry:
     """``[V]`` median rendered z-depth of the pixels that show a surface (scene units)."""
 
 
+def camera_matrices(cameras: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(viewmats [V, 4, 4] world-to-camera OpenCV, Ks [V, 3, 3], sizes [V, 2] width and height)``
+    of a nerfstudio ``Cameras``, float64 numpy, as :func:`stealth_ns.defences.scores.frustum_depth_ratios`
+    reads them."""
+    return (
+        viewmat_from_c2w(cameras.camera_to_worlds.float()).double().cpu().numpy(),
+        cameras.get_intrinsics_matrices().double().cpu().numpy(),
+        torch.stack([cameras.width[:, 0], cameras.height[:, 0]], dim=1).double().cpu().numpy(),
+    )
+
+
 @torch.no_grad()
 def camera_geometry(model: StealthSplatModel, cameras: object, desc: str = "scene depth") -> CameraGeometry:
     """The cameras of ``cameras`` (V views) with each one's median rendered depth. A view that shows
@@ -76,12 +87,8 @@ def camera_geometry(model: StealthSplatModel, cameras: object, desc: str = "scen
             bar.update(1)
     known = depths[np.isfinite(depths)]
     depths[~np.isfinite(depths)] = float(np.median(known)) if known.size else 1.0
-    return CameraGeometry(
-        viewmats=viewmat_from_c2w(cameras.camera_to_worlds.float()).double().cpu().numpy(),
-        Ks=cameras.get_intrinsics_matrices().double().cpu().numpy(),
-        sizes=torch.stack([cameras.width[:, 0], cameras.height[:, 0]], dim=1).double().cpu().numpy(),
-        scene_depths=depths,
-    )
+    viewmats, ks, sizes = camera_matrices(cameras)
+    return CameraGeometry(viewmats=viewmats, Ks=ks, sizes=sizes, scene_depths=depths)
 
 
 @dataclass(frozen=True)

@@ -115,15 +115,20 @@ class Evaluator:
 
 def cut_metrics(evaluate: Evaluator, baseline: dict, pruned: np.ndarray, is_poison: np.ndarray) -> dict:
     """The numbers of one cut: what it removed, V-illusory after and the V-test cost (dB)."""
+    return {**detection.operating_point(is_poison, pruned), **defeat_metrics(evaluate, baseline, pruned)}
+
+
+def defeat_metrics(evaluate: Evaluator, baseline: dict, pruned: np.ndarray) -> dict:
+    """V-illusory and V-test of the model without ``pruned``, the V-test cost against ``baseline`` (dB;
+    None when either V-test is) and whether that defeats the attack (:data:`DEFEAT_RULE`)."""
     after = evaluate(pruned)
     cost = None
     if after["v_test_psnr"] is not None and baseline["v_test_psnr"] is not None:
         cost = baseline["v_test_psnr"] - after["v_test_psnr"]
-    out = {**detection.operating_point(is_poison, pruned), **after, "v_test_cost": cost}
-    out["defeats_attack"] = bool(
+    defeats = bool(
         after["v_illusory_psnr"] is not None
         and cost is not None
         and after["v_illusory_psnr"] < DEFEAT_V_ILLUSORY
         and cost <= DEFEAT_V_TEST_COST
     )
-    return out
+    return {**after, "v_test_cost": cost, "defeats_attack": defeats}

@@ -214,8 +214,9 @@ def copy_dataset(source: SourceDataset, output: Path, overwrite: bool = False) -
 
 
 def _check_source(source: SourceDataset) -> None:
-    """The dataset check's path rules (:mod:`stealth_ns.dataset_check`): no file it names leaves its
-    folder, except the images and depths of the dataset a seeded copy was made from."""
+    """check-data's path rules (:mod:`stealth_ns.dataset_check`): no file the dataset names leaves its
+    folder, except the images and depths of the dataset a seeded copy was made from (a COLMAP model's
+    image names are read by its whole check, images not decoded)."""
     from stealth_ns.dataset_check import check_colmap, check_references, read_json_object, transforms_path
 
     if source.format == "colmap":
@@ -230,17 +231,13 @@ def _internalise_references(copy: PoisonedCopy) -> None:
     folder are copied into ``external/`` and the paths rewritten (relative to the copy), as are absolute
     paths into the folder (they named the input's files, not the copy's).
 
-    First, before any file is copied, every reference is checked as ``check-data`` checks it
-    (:func:`stealth_ns.dataset_check.check_references`): a file outside the folder is copied only when
-    it is one another dataset declares as its own -- the images of a seeded copy made by ``stealth-ns
-    seed-points --output`` -- never ``../../etc/passwd`` nor a ``ply_file_path`` elsewhere.
+    Every reference was checked before the copy was written (:func:`_check_source`): a file outside the
+    folder is one another dataset declares as its own -- the images of a seeded copy made by
+    ``stealth-ns seed-points --output`` -- never ``../../etc/passwd`` nor a ``ply_file_path`` elsewhere.
     """
-    from stealth_ns.dataset_check import check_references
-
     path = copy.root / "transforms.json"
     text = path.read_text(encoding="utf-8")
     meta = json.loads(text)
-    check_references(copy.source.root / "transforms.json", meta)
     renamed: dict[Path, str] = {}  # a frame's path as nerfstudio matches it -> its path in the copy
     for frame in meta.get("frames", []):
         for key in _FRAME_FILE_KEYS:

@@ -22,17 +22,22 @@ from stealth_ns.poisoning.dataset_copy import SourceDataset
 def trainer_config(
     source: SourceDataset, attack: AttackConfig, method: str = "stealth-splat-lite", seed: int = 0
 ) -> Any:
-    """The ``TrainerConfig`` of ``METHOD`` on ``source`` with ``attack`` (``--vis tensorboard``)."""
+    """The ``TrainerConfig`` of ``METHOD`` on ``source`` with ``attack`` (``--vis tensorboard``); a
+    Blender scene gets the blender-data parser and a white background, as NeRF-synthetic is trained."""
+    from nerfstudio.data.dataparsers.blender_dataparser import BlenderDataParserConfig
     from nerfstudio.data.dataparsers.colmap_dataparser import ColmapDataParserConfig
 
     from stealth_ns.method_configs.registry import method_config
 
     config = copy.deepcopy(method_config(method))
     datamanager = config.pipeline.datamanager
-    if source.format == "colmap":
+    if source.scene.format == "colmap":
         datamanager.dataparser = ColmapDataParserConfig(
             colmap_path=Path(str(source.colmap_path)), downscale_factor=1, load_3D_points=True
         )
+    elif source.scene.format == "blender":
+        datamanager.dataparser = BlenderDataParserConfig()
+        config.pipeline.model.background_color = "white"
     datamanager.dataparser.data = source.root
     datamanager.data = source.root
     config.pipeline.attack = attack

@@ -27,6 +27,7 @@ from stealth_ns.attack.config import AttackConfig
 from stealth_ns.datasets.frames import FRAMES, frame_transforms
 from stealth_ns.datasets.source import SceneSource, inspect_folder
 from stealth_ns.defences.scores import frustum_depth_ratios
+from stealth_ns.defences.signals import camera_matrices
 from stealth_ns.errors import StealthNSError
 from stealth_ns.gaussian_ply import GaussianCloud, read_gaussian_ply
 from stealth_ns.gaussian_transform import transform_cloud
@@ -34,7 +35,7 @@ from stealth_ns.metrics import psnr
 from stealth_ns.model import StealthSplatModel
 from stealth_ns.model_cloud import LOADED_STEP, cloud_of_model, cloud_of_params, load_cloud
 from stealth_ns.pipeline import rgb_float
-from stealth_ns.raster.projection import viewmat_from_c2w
+from stealth_ns.poisoning.dataset_copy import SourceDataset
 from stealth_ns.render_view import render_camera
 from stealth_ns.runs.loaded import LoadedRun, load_run
 
@@ -96,36 +97,25 @@ def _check_same_data(run: LoadedRun, data: Path | None) -> None:
 
 
 def host_config(scene: SceneSource, sh_degree: int = 3) -> Any:
-    """The ``TrainerConfig`` of :data:`HOST_METHOD` on ``scene`` (attack off), as ns-train would make it."""
-    from nerfstudio.data.dataparsers.blender_dataparser import BlenderDataParserConfig
-    from nerfstudio.data.dataparsers.colmap_dataparser import ColmapDataParserConfig
+    """The ``TrainerConfig`` of :data:`HOST_METHOD` on ``scene`` (attack off), as ns-train would make it,
+    with SH up to ``sh_degree`` (at least 3, splatfacto's)."""
+    from stealth_ns.poisoning.setup import trainer_config
 
-    from stealth_ns.method_configs.registry import method_config
-
-    config = copy.deepcopy(method_config(HOST_METHOD))
-    dm = config.pipeline.datamanager
-    if scene.format == "colmap":
-        dm.dataparser = ColmapDataParserConfig(colmap_path=Path(str(scene.colmap_path)), downscale_factor=1)
-    elif scene.format == "blender":
-        dm.dataparser = BlenderDataParserConfig()
-        config.pipeline.model.background_color = "white"
-    dm.dataparser.data = scene.path
-    dm.data = scene.path
-    config.pipeline.attack = AttackConfig(enabled=False)
+    config = trainer_config(SourceDataset(scene), AttackConfig(enabled=False), HOST_METHOD)
     config.pipeline.model.sh_degree = max(3, sh_degree)
-    config.vis = "tensorboard"
     return config
 
 
-def host_run(config: Any, label: Path) -> LoadedRun:
+def host_run(config: Any, label: Path, checkpoint: Path | None = None) -> LoadedRun:
     """Set up ``config``'s pipeline for evaluation (held-out split loaded, training images cached) as
-    a :class:`LoadedRun` named ``label``; its model's rows are to be replaced."""
+    a :class:`LoadedRun` named ``label`` (``checkpoint``: the one its Gaussians come from, if any); its
+    model's rows are to be replaced."""
     from stealth_ns.poisoning.setup import setup_pipeline
 
     pipeline = setup_pipeline(config, test_mode="test")
     pipeline.eval()
     pipeline.datamanager.cached_train  # noqa: B018 - caches (and undistorts) the training images
-    return LoadedRun(Path(label), pipeline, LOADED_STEP, config, None)
+    return LoadedRun(Path(label), pipeline, LOADED_STEP, config, checkpoint)
 
 
 def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
@@ -135,10 +125,11 @@ def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
     transforms = frame_transforms(run.pipeline.datamanager.train_dataparser_outputs, scene)
     if frame != "auto" and frame not in transforms:
         raise StealthNSError(f"--frame {frame}: {data} has no such frame (it has {', '.join(transforms)})")
-    candidates = transforms if frame == "auto" else {frame: transforms[frame]}
-    # frames that coincide (a Blender dataset's own frame is nerfstudio's) are tried once
-    candidates = {k: m for i, (k, m) in enumerate(candidates.items())
-                  if not any(np.allclose(m, prev) for prev in list(candidates.values())[:i])}  # fmt: skip
+    candidates: dict[str, np.ndarray] = {}
+    for name, matrix in (transforms if frame == "auto" else {frame: transforms[frame]}).items():
+        # frames that coincide (a Blender dataset's own frame is nerfstudio's) are tried once
+        if not any(np.allclose(matrix, tried) for tried in candidates.values()):
+            candidates[name] = matrix
     match: dict[str, dict[str, float]] = {}
     for name, matrix in candidates.items():
         load_cloud(run.model, transform_cloud(cloud, matrix))
@@ -165,13 +156,9 @@ def frame_match(run: LoadedRun) -> dict[str, float]:
     model: StealthSplatModel = run.model
     dm = run.pipeline.datamanager
     cameras = dm.train_dataset.cameras
-    sizes = torch.stack([cameras.width[:, 0], cameras.height[:, 0]], dim=1).double().numpy()
+    viewmats, ks, sizes = camera_matrices(cameras)
     ratios = frustum_depth_ratios(
-        model.means.detach().double().cpu().numpy(),
-        viewmat_from_c2w(cameras.camera_to_worlds.float()).double().numpy(),
-        cameras.get_intrinsics_matrices().double().numpy(),
-        sizes,
-        np.ones(len(cameras)),
+        model.means.detach().double().cpu().numpy(), viewmats, ks, sizes, np.ones(len(cameras))
     )
     views = np.unique(np.linspace(0, len(cameras) - 1, FRAME_TEST_VIEWS).round().astype(int))
     scores = []
@@ -202,12 +189,13 @@ def _load_splatfacto_run(config_path: Path, config: Any, data: Path | None) -> I
         raise StealthNSError(f"{checkpoint} holds no Gaussians (no gauss_params.means)")
     params = {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
     cloud = cloud_of_params(params, int(model_cfg.sh_degree))
-    dataset = Path(data) if data is not None else Path(config.pipeline.datamanager.data or "")
+    dm = config.pipeline.datamanager
+    dataset = Path(data) if data is not None else Path(dm.data or dm.dataparser.data or "")
     host = host_config(inspect_folder("--data", str(dataset)), cloud.sh_degree)
-    host.pipeline.datamanager.dataparser = copy.deepcopy(config.pipeline.datamanager.dataparser)
+    host.pipeline.datamanager.dataparser = copy.deepcopy(dm.dataparser)
     host.pipeline.datamanager.dataparser.data = dataset
     host.pipeline.model.background_color = model_cfg.background_color
-    run = host_run(host, config_path)
+    run = host_run(host, config_path, checkpoint)
     load_cloud(run.model, cloud)
     return ImportedModel(run, f"splatfacto run ({config.method_name})", cloud)
 

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 from pathlib import Path
 from typing import Any
@@ -101,7 +102,7 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
         "removed": int(result.removed.sum()),
         "groups": [group_entry(g) for g in result.groups],
         "ground_truth": ground_truth(result),
-        "config": {k: v for k, v in vars(cfg).items()},
+        "config": dataclasses.asdict(cfg),
         "seconds": result.seconds,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "software": software_and_hardware(),

@@ -42,12 +42,13 @@ def groups_by_view(flagged: np.ndarray, weights: np.ndarray, min_size: int = 1) 
 
 @dataclass(frozen=True)
 class EffectRule:
-    """The thresholds of :func:`effect_mask` (defaults and their reasons: ``ScanConfig``)."""
+    """The thresholds of :func:`effect_mask` (``ScanConfig.effect_rule()``: the defaults, with their
+    reasons, are the scan's options)."""
 
-    opaque: float = 0.5
-    depth_ratio: float = 0.5
-    near_ratio: float = 0.3
-    colour_change: float = 0.1
+    opaque: float
+    depth_ratio: float
+    near_ratio: float
+    colour_change: float
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,7 @@ def effect_mask(
     rest: RenderedView,
     group: RenderedView,
     scene_depth: float,
-    cfg: EffectRule = EffectRule(),
+    cfg: EffectRule,
 ) -> np.ndarray:
     """``[H, W]`` bool: where a group floats close in front of the scene and changes what the view shows.
 
