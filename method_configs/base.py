@@ -6,13 +6,13 @@ import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
-from nerfstudio.engine.trainer import TrainerConfig
 
 from stealth_ns.datamanager import StealthDataManagerConfig
 from stealth_ns.model import StealthSplatModelConfig
 from stealth_ns.optimizers import FusedAdamOptimizerConfig
 from stealth_ns.pipeline import StealthPipelineConfig
 from stealth_ns.schedulers import FloatExponentialDecaySchedulerConfig
+from stealth_ns.trainer import StealthTrainerConfig
 
 #: The viewer's default bind address during ns-train: loopback, not every interface.
 VIEWER_HOST = "127.0.0.1"
@@ -61,9 +61,10 @@ def trainer_config(
     steps_per_eval_image: int,
     steps_per_eval_all_images: int,
     steps_per_save: int,
-) -> TrainerConfig:
-    """A splatfacto-shaped ``TrainerConfig`` for the stealth-splat model."""
-    return TrainerConfig(
+) -> StealthTrainerConfig:
+    """A splatfacto-shaped ``TrainerConfig`` (whose trainer checks what it resumes from) for the
+    stealth-splat model."""
+    return StealthTrainerConfig(
         method_name=method_name,
         steps_per_eval_image=steps_per_eval_image,
         steps_per_eval_batch=0,

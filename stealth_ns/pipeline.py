@@ -9,6 +9,7 @@ schedule, writes the attack's artifacts, and registers the density-guided inject
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import shutil
 import time
@@ -43,10 +44,12 @@ from stealth_ns.attack.support import render_poison, support_target
 from stealth_ns.attack.validation import validate_attack_config
 from stealth_ns.attack.views import median_view, multi_view_indices, nearest_views, resolve_views
 from stealth_ns.attack.visibility import CameraDepths
+from stealth_ns.checkpoints import checkpoint_mismatch
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager, dataset_image_names
 from stealth_ns.errors import StealthNSError, fail
-from stealth_ns.fingerprint import record_fingerprint
+from stealth_ns.fingerprint import dataset_fingerprint, record_fingerprint
 from stealth_ns.image_io import to_float32
+from stealth_ns.json_io import json_safe
 from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
 from stealth_ns.model import NEAR_PLANE, StealthSplatModel
 from stealth_ns.raster.projection import viewmat_from_c2w
@@ -203,6 +206,7 @@ class StealthPipeline(VanillaPipeline):
         self.record: AttackRecord | None = None  # set when training starts (or resumes)
         self._restored_record: dict[str, Any] | None = None  # attack.json content, from a loaded checkpoint
         self._loaded_step = -1
+        self._saved_state: dict[str, Any] = {}  # the extra state of a loaded checkpoint
         self.stealth_attack = StealthAttackPanel(self)  # the viewer's panel; inert without a viewer
         cfg = config.attack
         if self.test_mode == "inference":  # ns-viewer / ns-export: no training data needed
@@ -310,18 +314,40 @@ class StealthPipeline(VanillaPipeline):
 
     # ------------------------------------------------------------------ checkpoints and resuming
     def get_extra_state(self) -> dict[str, str]:
-        """Stored in every checkpoint: the attack record, which a resumed run continues."""
-        return {"attack_record": "{}" if self.record is None else self.record.dumps()}
+        """Stored in every checkpoint: the attack record, which a resumed run continues, and the
+        training images' fingerprint, by which a loaded checkpoint is matched to its dataset."""
+        state = {"attack_record": "{}" if self.record is None else self.record.dumps()}
+        if self.test_mode != "inference":
+            state["train_images"] = json.dumps(self.train_images_fingerprint)
+        return state
 
     def set_extra_state(self, state: Any) -> None:
-        if isinstance(state, dict) and state.get("attack_record"):
-            self._restored_record = json.loads(state["attack_record"]) or None
+        self._saved_state = dict(state) if isinstance(state, dict) else {}
+        if self._saved_state.get("attack_record"):
+            self._restored_record = json.loads(self._saved_state["attack_record"]) or None
+
+    @functools.cached_property
+    def train_images_fingerprint(self) -> dict[str, Any]:
+        """The training split's image fingerprint (count and content hash; poses left out: nerfstudio
+        changes undistorted cameras in place)."""
+        fingerprint = dataset_fingerprint(self.datamanager.train_dataparser_outputs)
+        return {k: fingerprint[k] for k in ("version", "n_images", "images")}
 
     def load_pipeline(self, loaded_state: dict[str, Any], step: int) -> None:
+        """Load a checkpoint (resuming, or a run loaded for evaluation), refusing one of another
+        dataset or another attack (:func:`stealth_ns.checkpoints.checkpoint_mismatch`)."""
         state = dict(loaded_state)
         state.setdefault("_extra_state", {})  # checkpoint from before the record was stored
         self._loaded_step = step
         super().load_pipeline(state, step)
+        if self.test_mode == "inference":
+            return
+        attack = json_safe(dataclasses.asdict(self.config.attack)) if self.config.attack.enabled else None
+        resuming = self.test_mode == "val"  # ns-train; a run loaded for evaluation is in "test"
+        why = checkpoint_mismatch(self._saved_state, attack, self.train_images_fingerprint, resuming)
+        if why is not None:
+            data = self.datamanager.config.dataparser.data
+            fail(f"the checkpoint of step {step} does not belong to the run on {data}: {why}")
 
     def _continue_record(self, restored: dict[str, Any], attrs: TrainingCallbackAttributes) -> None:
         """A run resumed from a checkpoint (``--load-dir``): carry its record on, say where it

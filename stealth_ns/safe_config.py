@@ -17,7 +17,7 @@ config holds and refuses every other python tag before importing or calling anyt
 
 Allowed modules: ``nerfstudio.*`` except its scripts (``nerfstudio.scripts``,
 ``nerfstudio.process_data``, ``nerfstudio.utils.scripts``), the ``stealth_ns`` modules a config
-names (attack, datamanager, model, pipeline, schedulers, optimizers, raster) and ``torch.optim``.
+names (attack, datamanager, model, pipeline, schedulers, optimizers, raster, trainer) and ``torch.optim``.
 ``safe_eval_setup`` is nerfstudio's ``eval_setup`` with this loader. docs/security.md.
 """
 
@@ -49,6 +49,7 @@ ALLOWED_MODULES: tuple[str, ...] = (
     "stealth_ns.schedulers",
     "stealth_ns.optimizers",
     "stealth_ns.raster",
+    "stealth_ns.trainer",
     "torch.optim",
 )
 #: Never, even though under an allowed prefix: they run commands.
@@ -223,12 +224,14 @@ def safe_eval_setup(
 ) -> tuple[Any, Any, Path, int]:
     """nerfstudio's ``eval_setup`` with :func:`load_config` in place of ``yaml.Loader``.
 
-    Returns ``(config, pipeline, checkpoint_path, step)``. The checkpoint is read by nerfstudio
-    (``torch.load``, whose default since torch 2.6 is ``weights_only=True``: tensors, no code).
+    Returns ``(config, pipeline, checkpoint_path, step)``. The checkpoint (the latest, or
+    ``load_step``'s) is found and read before the pipeline is set up (:mod:`stealth_ns.checkpoints`:
+    ``torch.load`` with ``weights_only=True``, tensors, no code; one-line errors).
     """
     import torch
     from nerfstudio.configs.method_configs import all_methods
-    from nerfstudio.utils.eval_utils import eval_load_checkpoint
+
+    from stealth_ns.checkpoints import find_checkpoint, read_checkpoint
 
     config = load_config(config_path)
     if config.method_name not in all_methods:
@@ -239,8 +242,16 @@ def safe_eval_setup(
     if update_config_callback is not None:
         config = update_config_callback(config)
     config.load_dir = config.get_checkpoint_dir()
+    checkpoint_path = find_checkpoint(config.load_dir, config.load_step, flag="checkpoint folder")
+    state = read_checkpoint(checkpoint_path)
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     pipeline = config.pipeline.setup(device=device, test_mode=test_mode)
     pipeline.eval()
-    checkpoint_path, step = eval_load_checkpoint(config, pipeline)
-    return config, pipeline, checkpoint_path, step
+    try:
+        pipeline.load_pipeline(state["pipeline"], state["step"])
+    except (RuntimeError, KeyError) as err:  # another model's parameters
+        reason = str(err).splitlines()[0]
+        raise StealthNSError(
+            f"checkpoint {checkpoint_path} does not fit the model of {config_path} ({reason})"
+        ) from None
+    return config, pipeline, checkpoint_path, int(state["step"])

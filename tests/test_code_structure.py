@@ -35,7 +35,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "stealth_ns", "errors", "json_io", "image_io", "provenance", "fingerprint", "safe_config",
             "step_timing", "malloc_tuning", "schedulers", "optimizers", "figures", "output_folder",
-            "html_page",
+            "html_page", "checkpoints",
         ),
     ),
     (
@@ -54,7 +54,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         ),
     ),
     ("training parts", ("datamanager", "viewer")),
-    ("pipeline and methods", ("pipeline", "method_configs")),
+    ("pipeline and methods", ("pipeline", "trainer", "method_configs")),
     ("poisoning", ("poisoning",)),
     ("trained runs", ("runs",)),
     ("evaluation", ("difficulty", "defend", "scan")),

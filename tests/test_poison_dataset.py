@@ -23,6 +23,7 @@ from stealth_ns.attack.record import AttackRecord
 from stealth_ns.errors import StealthNSError
 from stealth_ns.image_io import read_image, to_uint8
 from stealth_ns.poisoning.data_only import poison_dataset
+from stealth_ns.poisoning.dataset_copy import FILES_RECORD
 from stealth_ns.scenes import make_scene
 from stealth_ns.scenes.writer import read_ply
 
@@ -205,11 +206,9 @@ def test_input_is_never_written(poisoned, scene):
 
 @pytest.fixture(scope="module")
 def noisy(poisoned, scene, tmp_path_factory) -> Path:
-    """Static noise (sigma 30), written with --overwrite over an earlier poisoned copy (which has a
-    stray file that must go)."""
+    """Static noise (sigma 30), written with --overwrite over an earlier poisoned copy."""
     out = tmp_path_factory.mktemp("pd_noisy") / "copy"
     shutil.copytree(poisoned[0], out)
-    (out / "stale.txt").write_text("from the earlier copy")
     attack = dataclasses.replace(DATA_ONLY, view_noise=True, noise_decay="constant", noise_sigma0=30.0)
     poison_dataset(scene, out, attack, overwrite=True)
     return out
@@ -238,7 +237,9 @@ def test_static_noise_on_innocent_training_views_only(noisy, scene):
 
 
 def test_overwrite_replaces_an_earlier_poisoned_copy(noisy, poisoned):
-    assert not (noisy / "stale.txt").exists()  # the earlier copy is replaced, not merged
+    recorded = json.loads((noisy / FILES_RECORD).read_text())
+    assert set(recorded["files"]) == set(tree_hashes(noisy)) - {FILES_RECORD} and not recorded["folders"]
+    assert all(recorded["files"][k] == v for k, v in tree_hashes(noisy).items() if k != FILES_RECORD)
     info = json.loads((noisy / "attack" / "attack.json").read_text())["poisoned_dataset"]
     assert info["complete"] is True and info["static_noise_sigma"] == 30.0
     # the same set-up places the same poison
@@ -379,6 +380,51 @@ def test_overwrite_never_replaces_a_folder_that_is_not_a_poisoned_copy(scene, tm
         poison_dataset(scene, mine, DATA_ONLY, overwrite=True)
     one_line(str(err.value))
     assert tree_hashes(mine) == before
+
+
+def test_overwrite_removes_only_what_the_copy_wrote(poisoned, scene, tmp_path):
+    """A file the user added to an earlier copy, or changed there, stops --overwrite before anything is
+    removed (it used to delete the whole folder); a copy cut short (its record still planning) is
+    replaced; unrelated files were never touched."""
+    out = tmp_path / "copy"
+    shutil.copytree(poisoned[0], out)
+    (out / "images" / "my_notes.txt").write_text("mine")
+    before = tree_hashes(out)
+    with pytest.raises(StealthNSError, match=r"holds files stealth-ns did not write .*images/my_notes.txt"):
+        poison_dataset(scene, out, DATA_ONLY, overwrite=True)
+    assert tree_hashes(out) == before
+    (out / "images" / "my_notes.txt").unlink()
+    name = AttackRecord.read(out / "attack").views[0].name
+    (out / name).write_bytes((out / name).read_bytes() + b"\0")  # the user changed a file of the copy
+    with pytest.raises(StealthNSError, match=f"or changed since .*{name}") as err:
+        poison_dataset(scene, out, DATA_ONLY, overwrite=True)
+    one_line(str(err.value))
+
+    # a copy cut short: its record lists files to be written (no hashes) and the folders it owns
+    cut = tmp_path / "cut"
+    shutil.copytree(poisoned[0], cut)
+    record = json.loads((cut / FILES_RECORD).read_text())
+    record["files"] = dict.fromkeys(record["files"])
+    record["folders"] = ["attack", "external"]
+    (cut / FILES_RECORD).write_text(json.dumps(record))
+    (cut / "attack" / "half_written.png").write_bytes(b"\x89PNG")
+    poison_dataset(scene, cut, DATA_ONLY, overwrite=True)
+    assert not (cut / "attack" / "half_written.png").exists()
+    again, first = tree_hashes(cut), tree_hashes(poisoned[0])
+    assert set(again) == set(first)
+    assert all(again[k] == first[k] for k in first if not k.startswith(("attack/", FILES_RECORD)))
+
+
+def test_links_out_of_the_dataset_that_it_does_not_use_stay_out_of_the_copy(scene, tmp_path):
+    source = Path(shutil.copytree(scene, tmp_path / "ds"))
+    (tmp_path / "secret.txt").write_text("private")
+    (source / "images" / "notes.txt").symlink_to(tmp_path / "secret.txt")
+    (source / "inside.txt").symlink_to(source / "transforms.json")  # inside: copied as a file
+    out = tmp_path / "copy"
+    poison_dataset(source, out, DATA_ONLY)
+    assert not (out / "images" / "notes.txt").exists() and not (out / "images" / "notes.txt").is_symlink()
+    assert (out / "inside.txt").read_bytes() == (source / "transforms.json").read_bytes()
+    assert not (out / "inside.txt").is_symlink()
 
 
 def test_other_dataset_formats_are_refused(tmp_path):

@@ -17,6 +17,7 @@ from typing import Any
 import torch
 import yaml
 
+from stealth_ns.checkpoints import read_checkpoint
 from stealth_ns.fingerprint import FINGERPRINT_FILE
 from stealth_ns.gaussian_rows import select_rows
 from stealth_ns.json_io import write_json_atomic
@@ -54,7 +55,7 @@ def write_pruned_run(
     if base.exists():
         shutil.rmtree(base)  # an earlier defend of this output folder
     (base / config.relative_model_dir).mkdir(parents=True)
-    loaded = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    loaded = read_checkpoint(checkpoint)
     state = pruned_state(loaded["pipeline"], keep.cpu())
     torch.save(
         {"step": loaded["step"], "pipeline": state}, base / config.relative_model_dir / checkpoint.name

@@ -6,7 +6,9 @@ COLMAP dataset in which some training images are replaced and (data-only) the se
 points added, so that any 3DGS trainer can consume it. This module
 
 * checks the input and the output folder (never the input, nor inside it, nor around it; an existing
-  output only when it is an earlier poisoned copy and ``overwrite`` is given);
+  output only when it is an earlier poisoned copy and ``overwrite`` is given, and then only the files
+  it recorded writing, unchanged, in ``OUTPUT/.stealth-ns-copy.json``: a file the user added there, or
+  changed, stops it before anything is removed);
 * copies the whole dataset folder, and files it references outside itself (the images of a seeded copy
   made by ``stealth-ns seed-points --output``) into ``external/``, rewriting those references;
 * writes replaced images in the file's own format and at its own path (re-reads them and reports how
@@ -31,6 +33,7 @@ import torch
 
 from stealth_ns.attack.record import RECORD_FILE, AttackRecord
 from stealth_ns.errors import StealthNSError
+from stealth_ns.file_manifest import files_under, foreign_files, read_manifest, remove_owned, write_manifest
 from stealth_ns.image_io import read_image, save_image
 from stealth_ns.json_io import write_json_atomic
 
@@ -42,6 +45,9 @@ DatasetFormat = Literal["nerfstudio-data", "colmap"]
 RECORD_DIR = "attack"
 #: Files referenced from outside the dataset folder are copied under this folder of the copy.
 EXTERNAL_DIR = "external"
+#: The copy's record of the files it wrote (:mod:`stealth_ns.file_manifest`).
+FILES_RECORD = ".stealth-ns-copy.json"
+WRITTEN_BY = "stealth_ns.poisoning.dataset_copy"
 _FRAME_FILE_KEYS = ("file_path", "depth_file_path", "mask_path")
 _SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 
@@ -125,7 +131,20 @@ def check_output(source: SourceDataset, output: Path, overwrite: bool) -> Path:
                 f"--output {output} is not empty and is not a poisoned copy written by stealth-ns: "
                 "--overwrite replaces only those"
             )
+        foreign = foreign_files(out, read_manifest(out / FILES_RECORD), _present(out))
+        if foreign:
+            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+            raise StealthNSError(
+                f"--output {output} holds files stealth-ns did not write there, or changed since (not in "
+                f"{FILES_RECORD}): {', '.join(foreign[:3])}{more}; --overwrite replaces only its own "
+                "files: move these away or give another folder"
+            )
     return out
+
+
+def _present(out: Path) -> list[str]:
+    """The files of an earlier copy at ``out`` (relative), its file record left out."""
+    return [f for f in files_under(out) if f != FILES_RECORD]
 
 
 @dataclass
@@ -196,11 +215,15 @@ def copy_dataset(source: SourceDataset, output: Path, overwrite: bool = False) -
     outside its folder are copied into ``output/external`` and the references rewritten."""
     out = check_output(source, output, overwrite)
     _check_source(source)  # a file named outside the dataset is refused before anything is written
-    if out.exists():
-        shutil.rmtree(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.exists():  # an earlier copy, holding nothing but what stealth-ns wrote (check_output)
+        remove_owned(out, read_manifest(out / FILES_RECORD), _present(out))
     try:
-        shutil.copytree(source.root, out, symlinks=False)
+        out.mkdir(parents=True, exist_ok=True)
+        # recorded first: a copy cut short is still a copy --overwrite may replace, and nothing else
+        planned = [f for f in files_under(source.root) if f != FILES_RECORD] + [f"{RECORD_DIR}/{RECORD_FILE}"]
+        write_manifest(out / FILES_RECORD, out, planned, WRITTEN_BY, False, (RECORD_DIR, EXTERNAL_DIR))
+        left_out = _LinksOut(source)
+        shutil.copytree(source.root, out, symlinks=False, dirs_exist_ok=True, ignore=left_out)
     except OSError as err:
         raise StealthNSError(f"cannot copy {source.root} to {out}: {err.strerror or err}") from None
     # marks the folder as a poisoned copy from now on (so --overwrite may replace an unfinished one);
@@ -208,9 +231,46 @@ def copy_dataset(source: SourceDataset, output: Path, overwrite: bool = False) -
     (out / RECORD_DIR).mkdir(exist_ok=True)
     write_json_atomic(out / RECORD_DIR / RECORD_FILE, {"poisoned_dataset": {"complete": False}})
     copy = PoisonedCopy(source, out)
+    if left_out.links:
+        print(f"left out of the copy: {len(left_out.links)} symbolic link(s) to files outside the dataset "
+              f"that it does not use ({', '.join(left_out.links[:3])})", flush=True)  # fmt: skip
     if source.format == "nerfstudio-data":
         _internalise_references(copy)
     return copy
+
+
+class _LinksOut:
+    """``copytree``'s ``ignore``: leaves out the record of an earlier copy (the source may be one) and
+    symbolic links that lead out of the dataset to files it does not name (a copy made to be shared
+    must not carry ``secret -> ~/.ssh/id_rsa``); the names it left out are kept in :attr:`links`."""
+
+    def __init__(self, source: SourceDataset) -> None:
+        self.root, self.real_root = source.root, Path(os.path.realpath(source.root))
+        self.used = _named_files(source)
+        self.links: list[str] = []
+
+    def __call__(self, folder: str, names: list[str]) -> list[str]:
+        skip = [FILES_RECORD] if Path(folder) == self.root and FILES_RECORD in names else []
+        for name in names:
+            path = Path(folder) / name
+            if not path.is_symlink() or Path(os.path.realpath(path)).is_relative_to(self.real_root):
+                continue
+            if not any(used == path or used.is_relative_to(path) for used in self.used):
+                skip.append(name)
+                self.links.append(path.relative_to(self.root).as_posix())
+        return skip
+
+
+def _named_files(source: SourceDataset) -> set[Path]:
+    """The files a nerfstudio-data source's transforms.json names (absolute, links not resolved); a
+    COLMAP model's images are checked to lie inside its folder with links resolved (empty set)."""
+    if source.format != "nerfstudio-data":
+        return set()
+    meta = json.loads((source.root / "transforms.json").read_text(encoding="utf-8"))
+    values = [meta.get(k) for k in ("ply_file_path", "mask_path")]
+    for frame in meta.get("frames", []):
+        values += [frame.get(k) for k in _FRAME_FILE_KEYS] if isinstance(frame, dict) else []
+    return {Path(os.path.abspath(source.root / v)) for v in values if isinstance(v, str)}
 
 
 def _check_source(source: SourceDataset) -> None:
@@ -346,4 +406,6 @@ def write_record(copy: PoisonedCopy, record: AttackRecord, details: dict[str, An
     }
     folder = copy.root / RECORD_DIR
     record.write(folder, views=True)
+    # the copy is complete: every file of it recorded with its hash (--overwrite removes only those)
+    write_manifest(copy.root / FILES_RECORD, copy.root, _present(copy.root), WRITTEN_BY, True)
     return folder

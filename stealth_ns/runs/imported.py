@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from stealth_ns.attack.config import AttackConfig
+from stealth_ns.checkpoints import find_checkpoint, read_checkpoint
 from stealth_ns.datasets.frames import FRAMES, frame_transforms
 from stealth_ns.datasets.source import SceneSource, inspect_folder
 from stealth_ns.defences.scores import frustum_depth_ratios
@@ -177,13 +178,8 @@ def _load_splatfacto_run(config_path: Path, config: Any, data: Path | None) -> I
             f"{config_path} was trained with {config.method_name!r}, not a Gaussian-splatting method "
             "(export a PLY of its Gaussians, or give a splatfacto or stealth-splat run)"
         )
-    checkpoint = _latest_checkpoint(config_path.parent / "nerfstudio_models")
-    try:
-        state = torch.load(checkpoint, map_location="cpu", weights_only=True)["pipeline"]
-    except Exception as err:
-        raise StealthNSError(
-            f"cannot read the checkpoint {checkpoint}: {type(err).__name__}: {err}"
-        ) from None
+    checkpoint = find_checkpoint(config_path.parent / "nerfstudio_models", flag="checkpoint folder")
+    state = read_checkpoint(checkpoint)["pipeline"]
     prefix = next((p for p in ("_model.gauss_params.", "model.gauss_params.") if f"{p}means" in state), None)
     if prefix is None:
         raise StealthNSError(f"{checkpoint} holds no Gaussians (no gauss_params.means)")
@@ -198,12 +194,3 @@ def _load_splatfacto_run(config_path: Path, config: Any, data: Path | None) -> I
     run = host_run(host, config_path, checkpoint)
     load_cloud(run.model, cloud)
     return ImportedModel(run, f"splatfacto run ({config.method_name})", cloud)
-
-
-def _latest_checkpoint(folder: Path) -> Path:
-    checkpoints = sorted(folder.glob("step-*.ckpt")) if folder.is_dir() else []
-    if not checkpoints:
-        raise StealthNSError(
-            f"{folder.parent} has no checkpoint (nerfstudio_models/step-*.ckpt): not trained?"
-        )
-    return checkpoints[-1]

@@ -30,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stealth_ns.fingerprint import file_sha256
+from stealth_ns.file_manifest import Manifest, files_under, read_manifest, remove_owned
+from stealth_ns.file_manifest import foreign_files as foreign_files_of
+from stealth_ns.file_manifest import write_manifest as record_files
 from stealth_ns.image_io import to_uint8
 
 BLENDER_SPLITS = ("train", "val", "test")
@@ -123,69 +125,29 @@ def write_json(path: Path, obj: dict) -> None:
     Path(path).write_text(text + "\n", encoding="utf-8")
 
 
-def _entries(output: Path) -> list[Path]:
-    """Files (and links) under ``output``'s :data:`GENERATED` entries, relative to ``output``."""
-    found = []
-    for name in GENERATED:
-        p = output / name
-        if p.is_dir() and not p.is_symlink():
-            found += [q.relative_to(output) for q in sorted(p.rglob("*")) if not q.is_dir() or q.is_symlink()]
-        elif p.exists() or p.is_symlink():
-            found.append(Path(name))
-    return found
-
-
-def read_manifest(output: Path) -> dict[str, str | None]:
-    """The files an earlier run of the generator recorded in ``output`` (relative path -> SHA-256,
-    None while it was still writing them); empty without a readable manifest."""
-    try:
-        meta = json.loads((output / MANIFEST).read_text(encoding="utf-8"))
-        files = meta["files"]
-        return {str(k): (v if isinstance(v, str) else None) for k, v in files.items()}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return {}
+def _manifest(output: Path) -> tuple[Manifest, list[str]]:
+    """The generator's manifest in ``output`` and the files under its :data:`GENERATED` entries."""
+    return read_manifest(output / MANIFEST), files_under(output, GENERATED)
 
 
 def foreign_files(output: Path) -> list[str]:
     """Files under the generator's entries of ``output`` that the manifest does not record as
     written by the generator (or that changed since): ``--overwrite`` must not touch them."""
-    recorded = read_manifest(output)
-    foreign = []
-    for rel in _entries(output):
-        key = rel.as_posix()
-        p = output / rel
-        if key not in recorded or p.is_symlink() or p.is_dir():
-            foreign.append(key)
-        elif recorded[key] is not None and file_sha256(p) != recorded[key]:
-            foreign.append(key)
-    return foreign
+    manifest, present = _manifest(output)
+    return foreign_files_of(output, manifest, present)
 
 
 def write_manifest(output: Path, files: list[str], hashes: bool) -> None:
     """Record ``files`` (relative paths) as written by the generator; with ``hashes`` their SHA-256
     (after writing), else None (before writing: a run cut short may still remove them)."""
-    record = {
-        f: (file_sha256(output / f) if hashes and (output / f).is_file() else None) for f in sorted(files)
-    }
-    text = json.dumps({"generator": "stealth_ns.scenes", "files": record}, indent=2, sort_keys=True)
-    (output / MANIFEST).write_text(text + "\n", encoding="utf-8")
+    record_files(output / MANIFEST, output, files, "stealth_ns.scenes", hashes)
 
 
 def clear_recorded(output: Path) -> None:
     """Remove the files the manifest records (call :func:`foreign_files` first), then the folders
-    of :data:`GENERATED` they leave empty, then the manifest; nothing else is touched."""
-    for key in read_manifest(output):
-        p = output / key
-        if p.is_file() and not p.is_symlink():
-            p.unlink()
-    for name in GENERATED:
-        top = output / name
-        if top.is_dir() and not top.is_symlink():
-            for d in sorted((q for q in top.rglob("*") if q.is_dir()), key=lambda q: -len(q.parts)):
-                if not any(d.iterdir()):
-                    d.rmdir()
-            if not any(top.iterdir()):
-                top.rmdir()
+    they leave empty, then the manifest; nothing else is touched."""
+    manifest, present = _manifest(output)
+    remove_owned(output, manifest, present)
     (output / MANIFEST).unlink(missing_ok=True)
 
 
