@@ -19,6 +19,7 @@ from stealth_ns.attack.config import AttackConfig
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.difficulty.rank import RankViews
 from stealth_ns.errors import StealthNSError
+from stealth_ns.output_folder import check_file_writable
 from stealth_ns.poisoning.config import IPAConfig
 from stealth_ns.scan.config import ScanConfig
 
@@ -90,8 +91,8 @@ class BenchRaster:
     def main(self) -> None:
         from stealth_ns.raster.bench import DEFAULT_CASES, run_raster_benchmark
 
-        if self.json is not None and not self.json.parent.exists():
-            raise StealthNSError(f"cannot write {self.json}: folder {self.json.parent} does not exist")
+        if self.json is not None:
+            check_file_writable(self.json, "--json")
         kwargs = {"cases": DEFAULT_CASES[:1], "repeats": 3} if self.quick else {}
         run_raster_benchmark(json_path=self.json, threads=self.threads, **kwargs)
 
@@ -118,8 +119,8 @@ class BenchTrain:
     def main(self) -> None:
         from stealth_ns.bench.train_step import run_train_benchmark
 
-        if self.json is not None and not self.json.parent.exists():
-            raise StealthNSError(f"cannot write {self.json}: folder {self.json.parent} does not exist")
+        if self.json is not None:
+            check_file_writable(self.json, "--json")
         if self.data is not None and not self.data.exists():
             raise StealthNSError(f"--data {self.data} does not exist")
         result = run_train_benchmark(

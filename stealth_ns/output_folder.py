@@ -30,3 +30,26 @@ def check_writable(output: Path, what: str = "report") -> None:
         raise StealthNSError(
             f"cannot write the {what} to {output}: {err.strerror or err} ({existing})"
         ) from None
+
+
+def check_outside(output: Path, folder: Path, what: str) -> None:
+    """StealthNSError when ``output`` is ``folder`` or lies inside it (links resolved): a command writes
+    beside a run or a dataset, never into it. ``what`` names the folder ("the run folder", ...)."""
+    out, inside = Path(output).resolve(), Path(folder).resolve()
+    if out == inside or inside in out.parents:
+        raise StealthNSError(f"--output {output} is inside {what} {inside}; choose another folder")
+
+
+def check_file_writable(path: Path, flag: str) -> None:
+    """StealthNSError unless the file ``path`` (given as ``flag``) can be written: not a folder, in an
+    existing folder that can be written (checked before a benchmark runs, not after)."""
+    path = Path(path)
+    if path.is_dir():
+        raise StealthNSError(f"{flag} {path} is a folder: give a file name (e.g. {path / 'bench.json'})")
+    if not path.parent.is_dir():
+        raise StealthNSError(f"cannot write {flag} {path}: folder {path.parent} does not exist")
+    try:
+        with tempfile.TemporaryFile(dir=path.parent, prefix=".stealth-ns-write-test-"):
+            pass
+    except OSError as err:
+        raise StealthNSError(f"cannot write {flag} {path}: {err.strerror or err}") from None

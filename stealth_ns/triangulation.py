@@ -125,7 +125,7 @@ def _run_colmap(pycolmap, tqdm, frames: list[Frame], work: Path, seed: int) -> t
     pycolmap.set_random_seed(seed)
     db_images, n_kp = _extract_features(pycolmap, tqdm, db_path, images, by_name)
     print(f"features: {n_kp} SIFT features in {len(names)} images ({time.perf_counter() - t:.1f} s)")
-    cameras, stats = _match_all_pairs(pycolmap, tqdm, db_path, work, db_images, seed)
+    cameras, stats = _match_all_pairs(pycolmap, tqdm, db_path, work, db_images, by_name, seed)
     points = _triangulate_known_poses(pycolmap, db_path, work, db_images, cameras, by_name, seed)
     return points, {"keypoints": n_kp, **stats}
 
@@ -166,10 +166,11 @@ def _extract_features(pycolmap, tqdm, db_path: Path, images: Path, by_name: dict
     return db_images, n_kp
 
 
-def _match_all_pairs(pycolmap, tqdm, db_path: Path, work: Path, db_images: list, seed: int):
+def _match_all_pairs(pycolmap, tqdm, db_path: Path, work: Path, db_images: list, by_name: dict, seed: int):
     """Match every image pair (in chunks, for the progress bar) with two-view verification, RANSAC
     seeded; returns the database's cameras (by id) and ``{"pairs", "inliers"}`` of the pairs with at
-    least :data:`MIN_INLIERS` verified matches."""
+    least :data:`MIN_INLIERS` verified matches, with ``pose_error_px``, how far those matches lie from
+    the epipolar lines of the given poses (:func:`epipolar_distances`)."""
     t = time.perf_counter()
     match = pycolmap.FeatureMatchingOptions()
     match.num_threads = 1
@@ -193,13 +194,56 @@ def _match_all_pairs(pycolmap, tqdm, db_path: Path, work: Path, db_images: list,
     with pycolmap.Database.open(db_path) as db:
         geoms = db.read_two_view_geometries()[1]
         cameras = sorted(db.read_all_cameras(), key=lambda c: c.camera_id)
+        pair_ids = db.read_two_view_geometries()[0]
+        keypoints = {im.image_id: np.asarray(db.read_keypoints(im.image_id))[:, :2] for im in db_images}
     good = [len(g.inlier_matches) for g in geoms if len(g.inlier_matches) >= MIN_INLIERS]
-    stats = {"pairs": len(good), "inliers": int(sum(good))}
+    stats: dict[str, float] = {"pairs": len(good), "inliers": int(sum(good))}
+    stats["pose_error_px"] = _pose_error(pycolmap, pair_ids, geoms, keypoints, db_images, cameras, by_name)
     print(
         f"matching: {len(pairs)} pairs, {stats['pairs']} with >= {MIN_INLIERS} verified matches, "
-        f"{stats['inliers']} matches ({time.perf_counter() - t:.1f} s)"
+        f"{stats['inliers']} matches, median distance to the given poses' epipolar lines "
+        f"{stats['pose_error_px']:.2f} px ({time.perf_counter() - t:.1f} s)"
     )
     return cameras, stats
+
+
+def _pose_error(pycolmap, pair_ids, geoms, keypoints, db_images, cameras, by_name) -> float:
+    """Median distance (px) of the verified matches of the good pairs to the epipolar lines the given
+    poses and intrinsics draw (nan without any): well under a pixel when the poses fit the images."""
+    intrinsics = {c.camera_id: c.calibration_matrix() for c in cameras}
+    image = {im.image_id: im for im in db_images}
+    errors = []
+    for pair_id, geom in zip(pair_ids, geoms, strict=True):
+        if len(geom.inlier_matches) < MIN_INLIERS:
+            continue
+        a, b = (image[i] for i in pycolmap.pair_id_to_image_pair(pair_id))
+        m = np.asarray(geom.inlier_matches)
+        errors.append(
+            epipolar_distances(
+                keypoints[a.image_id][m[:, 0]], keypoints[b.image_id][m[:, 1]],
+                intrinsics[a.camera_id], intrinsics[b.camera_id], by_name[a.name].c2w, by_name[b.name].c2w,
+            )
+        )  # fmt: skip
+    return float(np.median(np.concatenate(errors))) if errors else float("nan")
+
+
+def epipolar_distances(
+    x1: np.ndarray, x2: np.ndarray, k1: np.ndarray, k2: np.ndarray, c2w1: np.ndarray, c2w2: np.ndarray
+) -> np.ndarray:
+    """Symmetric distance (px) of matches ``x1`` <-> ``x2`` ([M, 2] pixels) to each other's epipolar
+    lines under intrinsics ``k1``, ``k2`` [3, 3] and OpenGL camera-to-world poses ``c2w1``, ``c2w2``
+    [4, 4] (lens distortion ignored) -> [M]."""
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])
+    w2c1, w2c2 = np.linalg.inv(c2w1 @ flip), np.linalg.inv(c2w2 @ flip)
+    rel = w2c2 @ np.linalg.inv(w2c1)
+    r, t = rel[:3, :3], rel[:3, 3]
+    cross = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    f = np.linalg.inv(k2).T @ cross @ r @ np.linalg.inv(k1)
+    h1, h2 = np.c_[x1, np.ones(len(x1))], np.c_[x2, np.ones(len(x2))]
+    line2, line1 = h1 @ f.T, h2 @ f  # lines in image 2 and image 1
+    d2 = np.abs(np.sum(line2 * h2, axis=1)) / np.maximum(np.hypot(line2[:, 0], line2[:, 1]), 1e-12)
+    d1 = np.abs(np.sum(line1 * h1, axis=1)) / np.maximum(np.hypot(line1[:, 0], line1[:, 1]), 1e-12)
+    return (d1 + d2) / 2
 
 
 def _triangulate_known_poses(

@@ -199,13 +199,14 @@ def test_scan_errors_are_one_line(tiny_run_pair, tiny_orbit_scene, tmp_path):
     far.means += 1000.0
     write_gaussian_ply(tmp_path / "far.ply", far)
     far_on_scene = ["--model", str(tmp_path / "far.ply"), "--data", str(tiny_orbit_scene)]
+    (tmp_path / "elsewhere").mkdir()
     cases = [
         (far_on_scene, "does not match the cameras"),
         (["--model", str(tmp_path / "far.ply")], "--data is needed with a PLY"),
         ([*far_on_scene, "--frame", "colmap"], "no such frame"),
         ([*far_on_scene, "--frame", "sideways"], "--frame must be auto or one of"),
         (["--model", str(tmp_path / "nothing")], "neither a PLY file nor a run"),
-        (["--model", str(tiny_run_pair[0]), "--data", str(tmp_path)], "was trained on"),
+        (["--model", str(tiny_run_pair[0]), "--data", str(tmp_path / "elsewhere")], "was trained on"),
         (["--model", str(tiny_run_pair[0]), "--region-threshold", "0"], "--region-threshold must be in"),
         (["--model", str(tiny_run_pair[0]), "--signals", "zscore"], "unknown signal 'zscore'"),
     ]
@@ -213,6 +214,15 @@ def test_scan_errors_are_one_line(tiny_run_pair, tiny_orbit_scene, tmp_path):
         with pytest.raises(StealthNSError, match=re.escape(needle)) as info:
             main(["scan", *args, "--output", str(tmp_path / "o")])
         assert "\n" not in str(info.value)
+    # never into the run folder nor the dataset (issue 32)
+    run_dir = tiny_run_pair[0].parent
+    for output, needle in (
+        (run_dir / "scan", "inside the run folder"),
+        (tiny_orbit_scene, "inside the dataset"),
+    ):
+        with pytest.raises(StealthNSError, match=re.escape(needle)):
+            main(["scan", "--model", str(run_dir), "--data", str(tiny_orbit_scene), "--output", str(output)])
+    assert not (run_dir / "scan").exists()
     # as the console script prints it
     proc = run_cli("stealth-ns", "scan", *far_on_scene, "--output", str(tmp_path / "o"), check=False)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr

@@ -296,3 +296,47 @@ def test_views_of_a_seeded_copy_keep_the_dataset_names(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     relative = [Path("data/fox/images") / n for n in names]
     assert dataset_image_names(Path("data/fox"), relative) == ["images/0042.png", "images/0043.png"]
+
+
+def test_poses_that_do_not_fit_the_images_are_named(scene: Path, tmp_path: Path) -> None:
+    """Poses shuffled among the frames: the images still match each other, so the old message blamed
+    the resolution; the verified matches lie far from the poses' epipolar lines, which is what it says."""
+    data = Path(shutil.copytree(scene, tmp_path / "shuffled"))
+    meta = json.loads((data / "transforms.json").read_text())
+    poses = [f["transform_matrix"] for f in meta["frames"]]
+    for frame, k in zip(meta["frames"], np.random.default_rng(0).permutation(len(poses)), strict=True):
+        frame["transform_matrix"] = poses[k]
+    (data / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(
+        StealthNSError, match=r"the camera poses do not fit the images: .* px \(median\)"
+    ) as err:
+        make_seed_points(data, output=tmp_path / "out")
+    assert "resolution" not in str(err.value) and not (tmp_path / "out").exists()
+
+
+def test_epipolar_distances_vanish_for_the_true_poses_only() -> None:
+    from scipy.spatial.transform import Rotation
+
+    from stealth_ns.triangulation import epipolar_distances
+
+    k = np.array([[100.0, 0, 64], [0, 100.0, 48], [0, 0, 1]])
+    rng = np.random.default_rng(1)
+    points = rng.uniform(-1, 1, (50, 3))
+    c2w = []
+    for angle in (0.0, 0.3):
+        m = np.eye(4)
+        m[:3, :3] = Rotation.from_euler("y", angle).as_matrix()
+        m[:3, 3] = m[:3, :3] @ np.array([0.0, 0.0, 5.0])  # looking at the origin (OpenGL: -z forward)
+        c2w.append(m)
+
+    def project(m: np.ndarray) -> np.ndarray:
+        w2c = np.linalg.inv(m @ np.diag([1.0, -1.0, -1.0, 1.0]))
+        cam = points @ w2c[:3, :3].T + w2c[:3, 3]
+        uv = cam @ k.T
+        return uv[:, :2] / uv[:, 2:]
+
+    x1, x2 = project(c2w[0]), project(c2w[1])
+    assert np.abs(epipolar_distances(x1, x2, k, k, c2w[0], c2w[1])).max() < 1e-6
+    moved = c2w[1].copy()
+    moved[:3, 3] += np.array([0.0, 1.0, 0.0])
+    assert np.median(epipolar_distances(x1, x2, k, k, c2w[0], moved)) > 3

@@ -90,6 +90,10 @@ def test_bench_train_bad_options(tmp_path):
     assert "Traceback" not in proc.stderr
     proc = run_cli("stealth-ns", "bench", "train", "--data", str(tmp_path / "missing"), check=False)
     assert proc.returncode != 0 and "does not exist" in proc.stderr + proc.stdout
+    # a folder given as --json: refused before the benchmark (it used to fail after it had run)
+    proc = run_cli("stealth-ns", "bench", "train", "--json", str(tmp_path), check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert f"--json {tmp_path} is a folder" in proc.stderr.strip().splitlines()[-1]
 
 
 def test_run_command_reports_the_childs_peak_rss(tmp_path):

@@ -42,7 +42,7 @@ from stealth_ns.defend.outputs import DEFEND_FILE, fmt, pct, write_outputs
 from stealth_ns.defend.rule import DEFEAT_RULE
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import json_safe, write_json_atomic
-from stealth_ns.output_folder import check_writable
+from stealth_ns.output_folder import check_outside, check_writable
 from stealth_ns.provenance import software_and_hardware
 from stealth_ns.runs.loaded import load_run
 from stealth_ns.runs.pair import RunPair
@@ -184,14 +184,8 @@ def _check_output(run: Path, output: Path, clean: Path | None) -> None:
     """One-line errors before anything is loaded: the output must be writable and not a run folder."""
     check_writable(output, "defence results")
     for given in (run, clean):
-        if given is None:
-            continue
-        run_dir = (given if given.is_dir() else given.parent).resolve()
-        out = output.resolve()
-        if out == run_dir or run_dir in out.parents:
-            raise StealthNSError(
-                f"--output {output} is inside the run folder {run_dir}; choose another folder"
-            )
+        if given is not None:
+            check_outside(output, given if given.is_dir() else given.parent, "the run folder")
     if clean is not None:
         _check_clean(run, clean)
 

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from stealth_ns.errors import StealthNSError
-from stealth_ns.output_folder import check_writable
+from stealth_ns.output_folder import check_outside, check_writable
 from stealth_ns.runs.imported import load_model
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.outputs import HTML_FILE, SCAN_FILE, write_outputs
@@ -22,6 +22,11 @@ def run_scan(model: Path, data: Path | None, output: Path, cfg: ScanConfig) -> d
     except ValueError as err:
         raise StealthNSError(str(err)) from None
     check_writable(output, "scan")
+    if Path(model).is_dir() or (Path(model).is_file() and Path(model).suffix.lower() != ".ply"):
+        # a run (folder or config.yml): never into its folder (a PLY's folder may be anything)
+        check_outside(output, model if Path(model).is_dir() else Path(model).parent, "the run folder")
+    if data is not None:
+        check_outside(output, data, "the dataset")
     t0 = time.perf_counter()
     print(f"loading {model}" + (f" on {data}" if data is not None else ""))
     imported = load_model(Path(model), None if data is None else Path(data), cfg.frame)
