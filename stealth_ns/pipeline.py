@@ -44,11 +44,12 @@ from stealth_ns.attack.support import render_poison, support_target
 from stealth_ns.attack.validation import validate_attack_config
 from stealth_ns.attack.views import median_view, multi_view_indices, nearest_views, resolve_views
 from stealth_ns.attack.visibility import CameraDepths
+from stealth_ns.background import uniform_background
 from stealth_ns.checkpoints import checkpoint_mismatch
 from stealth_ns.datamanager import NoiseSpec, StealthDataManager, dataset_image_names
 from stealth_ns.errors import StealthNSError, fail
 from stealth_ns.fingerprint import dataset_fingerprint, record_fingerprint
-from stealth_ns.image_io import to_float32
+from stealth_ns.image_io import to_float32, to_uint8
 from stealth_ns.json_io import json_safe
 from stealth_ns.metrics import illusion_metrics, psnr, v_illusory
 from stealth_ns.model import NEAR_PLANE, StealthSplatModel
@@ -253,6 +254,7 @@ class StealthPipeline(VanillaPipeline):
                 self.datamanager.train_dataparser_outputs,
                 self.datamanager.config.dataparser.data,
             )
+            self._say_background()
         if not self.config.attack.enabled or not self.poison_views:
             return callbacks
         restored = self._restored_record
@@ -270,6 +272,24 @@ class StealthPipeline(VanillaPipeline):
             )
             self._write_record(views=True)
         return callbacks + self._injection_callbacks()
+
+    def _say_background(self) -> None:
+        """Say so when RGB training images sit on a uniform white or black background and the model
+        trains under a random one (:mod:`stealth_ns.background`)."""
+        if self.model.config.background_color != "random":
+            return
+        n = len(self.datamanager.train_dataset)
+        picks = sorted({int(i) for i in np.linspace(0, n - 1, min(n, 8)).round()})
+        cached = self.datamanager.cached_train
+        found = uniform_background(to_uint8(cached[i]["image"].cpu().numpy()) for i in picks)
+        if found is not None:
+            colour, share = found
+            CONSOLE.print(
+                f"stealth-ns: warning: the training images sit on a uniform {colour} background "
+                f"({share:.0%} of {len(picks)} looked at): under the random background the model must "
+                f"paint it with Gaussians; train with --pipeline.model.background-color {colour}",
+                soft_wrap=True,
+            )
 
     def _start_poisoning(
         self, attrs: TrainingCallbackAttributes, restored: dict[str, Any] | None

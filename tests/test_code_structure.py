@@ -43,7 +43,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "raster", "attack", "scenes", "metrics", "ssim", "densification", "gaussian_rows",
             "dataset_check", "seed_points", "triangulation", "datasets", "defences", "gaussian_init",
-            "gaussian_ply", "gaussian_transform",
+            "gaussian_ply", "gaussian_transform", "background",
         ),
     ),
     (
