@@ -771,6 +771,9 @@ def test_colmap_and_blender_folders(tmp_path, monkeypatch):
     ranking = SimpleNamespace(easy="a.png", median="b.png", hard="c.png")
     ranked: list[Path] = []
     monkeypatch.setattr(difficulty, "rank_scene_views", lambda data: ranked.append(Path(data)) or ranking)
+    from stealth_ns.bench import scenes as bench_scenes
+
+    monkeypatch.setattr(bench_scenes, "check_source", lambda src: None)  # placeholder files: planning only
 
     plan = bench_plan(
         tmp_path / "out", tables=["1"], scenes=[f"garden={colmap}", f"lego={blender}"], iterations=30
@@ -813,6 +816,8 @@ def test_colmap_and_blender_folders(tmp_path, monkeypatch):
         (["mine={noframes}"], r"is not a nerfstudio transforms.json"),
         (["mine={badply}"], r"the ply_file_path 'points.ply' of .* does not exist"),
         (["mine={colmap_noimages}"], r"has a COLMAP model in sparse/0 but no images/ folder"),
+        # what ns-train's start-up check would refuse, before any run is planned (issue 32)
+        (["mine={good}"], r"^scene mine: .*frame 0 \(images/a.png\): transform_matrix must be"),
     ],
 )
 def test_bad_scene_specs_are_one_line_errors(tmp_path, scenes, message):

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from stealth_ns.dataset_check import check_colmap, check_dataset
 from stealth_ns.datasets.source import SceneSource, inspect_folder
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import write_json_atomic
@@ -66,6 +67,7 @@ def parse_scenes(values: Sequence[str] | None) -> tuple[tuple[SceneSource, ...],
             )
         else:
             sources.append(inspect_folder(name, folder))
+            check_source(sources[-1])  # what training would refuse, before any run is planned
     order = {name: i for i, name in enumerate(SCENES)}
     sources.sort(key=lambda src: order.get(src.name, len(order)))  # stable: other folders as given
     return tuple(sources), tuple(skipped)
@@ -126,3 +128,18 @@ def scene_fingerprint(plan_dir: Path, src: SceneSource, record: dict[str, Any] |
     if src.is_preset:
         return (plan_dir / "scene.json").read_text()
     return src.sha256 + (f":{record['ply_sha256']}" if record else "")
+
+
+def check_source(src: SceneSource) -> None:
+    """The check ns-train runs when it starts (:func:`stealth_ns.datamanager.check_nerfstudio_data`), run
+    on a dataset folder before a benchmark plans runs on it: StealthNSError with one line, naming the
+    scene, for what training would refuse. Blender folders are converted first (nothing to check)."""
+    if src.path is None:
+        return
+    try:
+        if src.format == "nerfstudio-data":
+            check_dataset(src.path)
+        elif src.format == "colmap":
+            check_colmap(src.path, str(src.colmap_path))
+    except StealthNSError as err:
+        raise StealthNSError(f"scene {src.name}: {err}") from None
