@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import tempfile
 from pathlib import Path
 
@@ -53,3 +54,27 @@ def check_file_writable(path: Path, flag: str) -> None:
             pass
     except OSError as err:
         raise StealthNSError(f"cannot write {flag} {path}: {err.strerror or err}") from None
+
+
+def remove_tree(path: Path, output: Path) -> None:
+    """``shutil.rmtree(path)`` of something a command wrote under its ``--output`` earlier, refused
+    (StealthNSError) when a symbolic link on the way from ``output`` would take the removal elsewhere:
+    nothing outside ``--output`` is deleted. A link at ``path`` itself is removed, not followed."""
+    import shutil
+
+    path, output = Path(path), Path(output)
+    rel = Path(os.path.relpath(os.path.abspath(path), os.path.abspath(output)))
+    if rel.parts[:1] == ("..",) or os.path.isabs(rel):
+        raise StealthNSError(f"{path} is not inside --output {output}: not removed")
+    step = Path(os.path.abspath(output))
+    for part in rel.parts[:-1]:
+        step = step / part
+        if step.is_symlink():
+            raise StealthNSError(
+                f"--output {output}: {step} is a symbolic link to {step.resolve()}; stealth-ns replaces "
+                "what it wrote there only inside --output: remove the link or choose another folder"
+            )
+    if path.is_symlink() or path.is_file():
+        path.unlink()
+    elif path.exists():
+        shutil.rmtree(path)

@@ -253,3 +253,17 @@ def test_cli_output_that_is_a_file_is_an_error(forward_scene, tmp_path):
     target.write_text("x")
     with pytest.raises(StealthNSError, match="is not a folder"):
         main(["rank-views", "--data", str(forward_scene), "--output", str(target)])
+
+
+def test_a_folder_with_two_colmap_models_is_ranked_on_the_one_the_bench_attacks(tmp_path):
+    """rank-views and the bench used to look for the COLMAP model in different orders (issue 32)."""
+    from stealth_ns.datasets.source import inspect_folder
+    from stealth_ns.difficulty.dataset import detect_format
+
+    for rel in ("colmap/sparse/0", "sparse/0"):
+        model = tmp_path / rel
+        model.mkdir(parents=True)
+        for name in ("cameras.txt", "images.txt", "points3D.txt"):
+            (model / name).write_text("")
+    (tmp_path / "images").mkdir()
+    assert detect_format(tmp_path) == ("colmap", Path(inspect_folder("x", str(tmp_path)).colmap_path))

@@ -21,6 +21,7 @@ from stealth_ns.checkpoints import read_checkpoint
 from stealth_ns.fingerprint import FINGERPRINT_FILE
 from stealth_ns.gaussian_rows import select_rows
 from stealth_ns.json_io import write_json_atomic
+from stealth_ns.output_folder import remove_tree
 from stealth_ns.safe_config import load_config
 
 GAUSS_PREFIX = "_model.gauss_params."
@@ -39,10 +40,18 @@ def pruned_state(pipeline_state: dict[str, Any], keep: torch.Tensor) -> dict[str
 
 
 def write_pruned_run(
-    config_path: Path, checkpoint: Path, keep: torch.Tensor, root: Path, name: str, info: dict[str, Any]
+    config_path: Path,
+    checkpoint: Path,
+    keep: torch.Tensor,
+    root: Path,
+    name: str,
+    info: dict[str, Any],
+    within: Path | None = None,
 ) -> Path:
     """Write the run ``config_path`` (final checkpoint ``checkpoint``) pruned to ``keep`` under ``root``
-    as the experiment ``name``; returns its ``config.yml``. ``info`` goes into ``defence.json``."""
+    as the experiment ``name``; returns its ``config.yml``. ``info`` goes into ``defence.json``. An
+    earlier one is replaced, unless a symbolic link between ``within`` (the command's ``--output``;
+    default ``root``) and it leads elsewhere (:func:`~stealth_ns.output_folder.remove_tree`)."""
     config = load_config(config_path)
     run_dir = Path(config_path).parent
     data = config.pipeline.datamanager.dataparser.data
@@ -52,8 +61,8 @@ def write_pruned_run(
     config.experiment_name = name
     config.load_dir, config.load_checkpoint = None, None
     base = config.get_base_dir()
-    if base.exists():
-        shutil.rmtree(base)  # an earlier defend of this output folder
+    # an earlier one of the command's, never through a link out of its --output (``base`` is resolved)
+    remove_tree(Path(root) / base.relative_to(config.output_dir), root if within is None else within)
     (base / config.relative_model_dir).mkdir(parents=True)
     loaded = read_checkpoint(checkpoint)
     state = pruned_state(loaded["pipeline"], keep.cpu())

@@ -104,7 +104,7 @@ def run_posthoc(
         info = {"defence": name, "rule": scored[name].rule}
         keep = torch.from_numpy(~scored[name].pruned)
         config = write_pruned_run(
-            target.run.config_path, target.checkpoint, keep, output / "pruned", name, info
+            target.run.config_path, target.checkpoint, keep, output / "pruned", name, info, within=output
         )
         entry["pruned_run"] = str(config)
     return baseline, scored, entries

@@ -9,7 +9,6 @@ with ``pipeline.datamanager.input_filter`` set, trained by ``ns-train METHOD --l
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,6 +19,7 @@ import yaml
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import write_json_atomic
+from stealth_ns.output_folder import remove_tree
 from stealth_ns.runs.training import bin_path, configured_iterations, run_command
 from stealth_ns.safe_config import load_config
 
@@ -68,8 +68,7 @@ def retrain(target: Target, cfg: DefendConfig, output: Path) -> tuple[Path, bool
             return run_dir / "config.yml", True
     except (OSError, ValueError):
         pass
-    if run_dir.exists():
-        shutil.rmtree(run_dir)
+    remove_tree(run_dir, output)  # an earlier, unfinished retraining (never through a link out)
     run_dir.mkdir(parents=True)
     spec = run_dir.parent / f"{run_dir.name}.input-config.yml"
     spec.write_text(yaml.dump(config), encoding="utf-8")

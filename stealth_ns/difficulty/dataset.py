@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from stealth_ns.datasets.source import COLMAP_DIRS
 from stealth_ns.errors import StealthNSError
 
 if TYPE_CHECKING:
@@ -17,12 +18,13 @@ if TYPE_CHECKING:
 
 
 Format = Literal["nerfstudio-data", "colmap"]
-_COLMAP_DIRS = ("colmap/sparse/0", "sparse/0", "sparse")
 
 
 def detect_format(data: Path) -> tuple[Format, Path]:
     """The dataparser for a dataset folder: ``("nerfstudio-data", folder or json)`` or ``("colmap", rel)``
-    with ``rel`` the COLMAP reconstruction folder relative to ``data``. StealthNSError otherwise."""
+    with ``rel`` the COLMAP reconstruction folder relative to ``data``, looked for in the order the bench
+    and the poisoned copies use (:data:`~stealth_ns.datasets.source.COLMAP_DIRS`: a folder with two
+    models is ranked on the one that is attacked). StealthNSError otherwise."""
     data = Path(data)
     if not data.exists():
         raise StealthNSError(f"dataset {data} does not exist")
@@ -32,7 +34,7 @@ def detect_format(data: Path) -> tuple[Format, Path]:
         raise StealthNSError(f"dataset {data} is a file; give the dataset folder (or its transforms.json)")
     if (data / "transforms.json").is_file():
         return "nerfstudio-data", data
-    for rel in _COLMAP_DIRS:
+    for rel in COLMAP_DIRS:
         if any((data / rel / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
             return "colmap", Path(rel)
     if any((data / f"transforms_{s}.json").is_file() for s in ("train", "val", "test")):
@@ -42,7 +44,7 @@ def detect_format(data: Path) -> tuple[Format, Path]:
         )
     raise StealthNSError(
         f"{data} has no transforms.json (nerfstudio-data) and no COLMAP reconstruction "
-        f"({', '.join(r + '/cameras.bin' for r in _COLMAP_DIRS)})"
+        f"({', '.join(r + '/cameras.bin' for r in COLMAP_DIRS)})"
     )
 
 

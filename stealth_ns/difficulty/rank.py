@@ -41,7 +41,7 @@ def rank_scene_views(
 
     Args:
         data: a nerfstudio-data folder (``transforms.json`` with ``ply_file_path``; or the json itself) or a
-            COLMAP folder (``colmap/sparse/0``, ``sparse/0`` or ``sparse`` with points3D).
+            COLMAP folder (``sparse/0``, ``colmap/sparse/0`` or ``sparse`` with points3D).
         radius_fraction: sampling radius as a fraction of the seed points' bounding-box diagonal.
         grid_resolution: KDE voxels along the longest side of the bounding box (if ``voxel_size`` is None).
         voxel_size: KDE voxel edge in scene units (overrides ``grid_resolution``).
