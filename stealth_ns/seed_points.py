@@ -388,6 +388,24 @@ def _writable(folder: Path) -> bool:
     return True
 
 
+def _ours(ply: Path) -> bool:
+    """Whether ``ply`` was written by stealth-ns (:func:`~stealth_ns.scenes.writer.write_ply`'s header)."""
+    try:
+        with ply.open("rb") as fh:
+            return b"\ncomment stealth-ns " in fh.read(200)
+    except OSError:
+        return False
+
+
+def _replaceable_ply(folder: Path) -> Path:
+    """``sparse_pc.ply`` unless it is a point cloud of the user's (not written by stealth-ns), else the
+    first ``sparse_pc_seeded*.ply`` that is free or ours: --overwrite never replaces the user's points."""
+    for name in (PLY_NAME, "sparse_pc_seeded.ply", *(f"sparse_pc_seeded_{k}.ply" for k in range(2, 1000))):
+        if not (folder / name).exists() or _ours(folder / name):
+            return folder / name
+    raise StealthNSError(f"{folder} holds 1000 seed point files: remove some")
+
+
 def _free_ply_name(folder: Path) -> Path:
     """``sparse_pc.ply``, or ``sparse_pc_seeded.ply``, ``sparse_pc_seeded_2.ply``, ... if taken."""
     for name in (PLY_NAME, "sparse_pc_seeded.ply"):
@@ -433,14 +451,18 @@ def _plan_outputs(ds: _Dataset, output: Path | None, overwrite: bool) -> _Plan:
             )
         if overwrite and ds.transforms is not None:  # update the user's transforms file in place
             dataset = root if ds.transforms.name == "transforms.json" else ds.transforms
-            return _Plan(ds.transforms, root / PLY_NAME, dataset, None, [f"updated {ds.transforms} in place"])
+            ply = _replaceable_ply(root)
+            notes = [f"updated {ds.transforms} in place"]
+            if ply.name != PLY_NAME:
+                notes.append(f"{root / PLY_NAME} is not stealth-ns' (kept): wrote {ply.name}")
+            return _Plan(ds.transforms, ply, dataset, None, notes)
         seeded = root / SEEDED_JSON
         if ds.transforms is not None and seeded.resolve() == ds.transforms.resolve():
             raise StealthNSError(
                 f"{seeded} is the input: pass --overwrite to update it in place, or --output OUT"
             )
         if overwrite:  # Blender: no nerfstudio file of the user's to update
-            return _Plan(seeded, root / PLY_NAME, seeded, None, [])
+            return _Plan(seeded, _replaceable_ply(root), seeded, None, [])
         if seeded.exists():
             raise StealthNSError(
                 f"{seeded} already exists (an earlier run?): delete it, or pass --overwrite or --output OUT"
@@ -464,8 +486,22 @@ def _plan_outputs(ds: _Dataset, output: Path | None, overwrite: bool) -> _Plan:
     for t in targets:
         if t.is_dir():
             raise StealthNSError(f"{t} is a folder")
+    if targets[0].is_file() and not _names_our_ply(targets[0]):
+        raise StealthNSError(
+            f"--output {output} holds a transforms.json that seed-points did not write (its ply_file_path "
+            "names no point cloud of stealth-ns'): --overwrite replaces only its own; give another folder"
+        )
     notes = [f"image paths in {targets[0].name} point to {root}"]
-    return _Plan(targets[0], targets[1], output, output, notes)
+    return _Plan(targets[0], _replaceable_ply(output), output, output, notes)
+
+
+def _names_our_ply(transforms: Path) -> bool:
+    """Whether the transforms file names, as its ``ply_file_path``, a point cloud stealth-ns wrote."""
+    try:
+        ply = json.loads(transforms.read_text(encoding="utf-8")).get("ply_file_path")
+    except (OSError, ValueError, AttributeError):
+        return False
+    return isinstance(ply, str) and _ours(transforms.parent / ply)
 
 
 def _rebased(meta: dict, root: Path, target: Path) -> dict:

@@ -340,3 +340,28 @@ def test_epipolar_distances_vanish_for_the_true_poses_only() -> None:
     moved = c2w[1].copy()
     moved[:3, 3] += np.array([0.0, 1.0, 0.0])
     assert np.median(epipolar_distances(x1, x2, k, k, c2w[0], moved)) > 3
+
+
+def test_overwrite_never_replaces_the_users_point_cloud(scene: Path, tmp_path: Path) -> None:
+    """--overwrite updates the transforms file in place, but the sparse_pc.ply there is the user's (from
+    their own reconstruction): it is kept, byte for byte, and the points go to another file (issue 32)."""
+    data = Path(shutil.copytree(scene, tmp_path / "data"))
+    xyz, rgb = read_ply(data / "sparse_pc.ply")
+    header = f"ply\nformat ascii 1.0\nelement vertex {len(xyz)}\nproperty float x\nproperty float y\n"
+    header += "property float z\nend_header\n"
+    (data / "sparse_pc.ply").write_text(header + "".join(f"{a} {b} {c}\n" for a, b, c in xyz))
+    theirs = (data / "sparse_pc.ply").read_bytes()
+    summary = make_seed_points(data, overwrite=True)
+    assert (data / "sparse_pc.ply").read_bytes() == theirs
+    assert summary.ply == data / "sparse_pc_seeded.ply"
+    assert json.loads((data / "transforms.json").read_text())["ply_file_path"] == "sparse_pc_seeded.ply"
+    again = make_seed_points(data, overwrite=True)  # its own file is the one replaced next time
+    assert again.ply == data / "sparse_pc_seeded.ply" and (data / "sparse_pc.ply").read_bytes() == theirs
+
+    # --output with --overwrite over a folder holding a transforms.json of the user's: refused
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "transforms.json").write_text('{"frames": []}')
+    with pytest.raises(StealthNSError, match="holds a transforms.json that seed-points did not write"):
+        make_seed_points(data, output=mine, overwrite=True)
+    assert (mine / "transforms.json").read_text() == '{"frames": []}'
