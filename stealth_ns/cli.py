@@ -115,14 +115,28 @@ class BenchTrain:
     """Torch/OpenMP threads (default: torch's default, the number of cores)."""
     json: Path | None = None
     """Also write the figures to this JSON file (keys median_step_ms, phases_ms, ...)."""
+    preset: str = "orbit"
+    """Without --data: the generated scene (stealth-ns make-scene --preset)."""
+    resolution: str | None = None
+    """Without --data: the generated scene's WIDTHxHEIGHT (default: the preset's), e.g. 1008x756."""
+    attack: bool = True
+    """False: time the clean run (--pipeline.attack.enabled False) instead."""
 
     def main(self) -> None:
         from stealth_ns.bench.train_step import run_train_benchmark
+        from stealth_ns.scenes import BLENDER_PRESETS, PRESETS, parse_resolution
 
         if self.json is not None:
             check_file_writable(self.json, "--json")
         if self.data is not None and not self.data.exists():
             raise StealthNSError(f"--data {self.data} does not exist")
+        if self.data is not None and (self.preset != "orbit" or self.resolution is not None):
+            raise StealthNSError("--preset and --resolution choose a generated scene: not with --data")
+        usable = [p for p in PRESETS if p not in BLENDER_PRESETS]  # nerfstudio-data scenes
+        if self.preset not in usable:
+            raise StealthNSError(f"--preset {self.preset!r}: choose one of {', '.join(usable)}")
+        if self.resolution is not None:
+            parse_resolution(self.resolution)  # a malformed one before the scene is made
         result = run_train_benchmark(
             data=self.data,
             method=self.method,
@@ -131,6 +145,9 @@ class BenchTrain:
             seed=self.seed,
             threads=self.threads,
             json_path=self.json,
+            preset=self.preset,
+            resolution=self.resolution,
+            attack=self.attack,
         )
         print(result.table())
 

@@ -620,3 +620,61 @@ def test_bad_lists_raise(ext):
     bad_off.view(-1)[-1] = fid.numel() + 5
     with pytest.raises(RuntimeError, match="isect_offsets"):
         cpp_backend.rasterize_to_pixels_cpp(m, cn, col, op, W, H, 16, bad_off, fid)
+
+
+# ----------------------------------------------------------------------------------------------
+# Footprint-narrowed tile lists (issue 33: SnugBox + AccuTile with the rasterizer's own footprint)
+# ----------------------------------------------------------------------------------------------
+def _lists(fn, means2d, radii, depths, W, H, conics=None, opacities=None, tile_size=16):
+    from stealth_ns.raster.tiles import Footprint
+
+    tw, th = math.ceil(W / tile_size), math.ceil(H / tile_size)
+    fp = None if conics is None else Footprint(conics, opacities, W, H)
+    return fn(means2d, radii, depths, tile_size, tw, th, fp)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_footprint_lists_are_a_subset_the_torch_reference_agrees_on(ext, seed):
+    from stealth_ns.raster.tiles import isect_tiles as torch_isect
+
+    C, N, W, H = 2, 3000, 203, 131
+    means2d, conics, _, opacities, radii, depths = make_gaussians(C, N, W, H, seed=seed)
+    opacities[0, :40] = 0.002  # below 1/255: in no list
+    full = _lists(cpp_backend.isect_tiles_cpp, means2d, radii, depths, W, H)
+    narrow = _lists(cpp_backend.isect_tiles_cpp, means2d, radii, depths, W, H, conics, opacities)
+    ref = _lists(torch_isect, means2d, radii, depths, W, H, conics, opacities)
+    assert torch.equal(narrow[0], ref[0].int()) and torch.equal(narrow[1], ref[1].int())
+    assert 0 < narrow[1].numel() < 0.8 * full[1].numel()
+    assert not set(range(40)) & set(narrow[1].tolist())
+    # every tile's narrowed list is its full list with entries left out, in the same order
+    n_bins = full[0].numel()
+    for off_n, fid_n, off_f, fid_f in ((*narrow, *full),):
+        ends_n = off_n.reshape(-1).tolist()[1:] + [fid_n.numel()]
+        ends_f = off_f.reshape(-1).tolist()[1:] + [fid_f.numel()]
+        for b in range(n_bins):
+            sub = fid_n[off_n.reshape(-1)[b] : ends_n[b]].tolist()
+            sup = iter(fid_f[off_f.reshape(-1)[b] : ends_f[b]].tolist())
+            assert all(any(x == y for y in sup) for x in sub)  # an ordered subsequence
+
+
+@pytest.mark.parametrize(
+    ("C", "N", "W", "H", "tile_size"), [(1, 400, 97, 61, 16), (2, 1500, 160, 120, 16), (1, 300, 70, 45, 8)]
+)
+def test_footprint_lists_change_no_pixel_and_no_gradient(ext, C, N, W, H, tile_size):
+    means2d, conics, colors, opacities, radii, depths = make_gaussians(C, N, W, H, seed=N)
+    bgs = torch.rand(C, 3, generator=torch.Generator().manual_seed(1))
+    results = []
+    for fp in (None, (conics, opacities)):
+        lists = _lists(
+            cpp_backend.isect_tiles_cpp, means2d, radii, depths, W, H, *(fp or ()), tile_size=tile_size
+        )
+        results.append(
+            run_both(
+                cpp_backend.rasterize_to_pixels_cpp, cpp_backend.rasterize_to_pixels_cpp,
+                (means2d, conics, colors, opacities), W, H, tile_size, *lists, bgs,
+            )[0]
+        )  # fmt: skip
+    (rc, ra, g), (rc_n, ra_n, g_n) = results
+    assert torch.equal(rc, rc_n) and torch.equal(ra, ra_n)
+    for name, a, b in zip(GRAD_NAMES + ["backgrounds"], g, g_n, strict=True):
+        assert torch.equal(a, b), name

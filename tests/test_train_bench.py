@@ -67,6 +67,15 @@ def test_leaf_phases_add_up_to_the_step():
     assert mean["callbacks/logging"] == pytest.approx(1000 * (0.016 + 0.116) / 2)
 
 
+def test_bench_train_times_a_generated_preset_at_a_resolution_clean_or_attacked(tmp_path, capsys):
+    from stealth_ns.bench.train_step import run_train_benchmark
+
+    result = run_train_benchmark(
+        preset="facing", resolution="80x60", warmup=2, steps=2, threads=1, attack=False
+    )
+    assert result.scene == "generated facing 80x60 (seed 0), clean run" and len(result.step_ms) == 2
+
+
 def test_bench_train_cli_on_a_small_scene(tiny_orbit_scene, tmp_path):
     path = tmp_path / "train.json"
     proc = run_cli(
@@ -90,6 +99,13 @@ def test_bench_train_bad_options(tmp_path):
     assert "Traceback" not in proc.stderr
     proc = run_cli("stealth-ns", "bench", "train", "--data", str(tmp_path / "missing"), check=False)
     assert proc.returncode != 0 and "does not exist" in proc.stderr + proc.stdout
+    for args, needle in (
+        (["--preset", "object"], "--preset 'object': choose one of orbit"),
+        (["--resolution", "10x"], "resolution"),
+        (["--data", str(tmp_path), "--preset", "facing"], "not with --data"),
+    ):
+        proc = run_cli("stealth-ns", "bench", "train", *args, check=False)
+        assert proc.returncode == 2 and needle in proc.stderr.strip().splitlines()[-1], proc.stderr[-500:]
     # a folder given as --json: refused before the benchmark (it used to fail after it had run)
     proc = run_cli("stealth-ns", "bench", "train", "--json", str(tmp_path), check=False)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr

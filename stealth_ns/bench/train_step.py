@@ -213,12 +213,12 @@ def summarise(steps: list[dict[str, float]]) -> tuple[dict[str, float], dict[str
     return median, mean, [1000 * s["step"] for s in steps]
 
 
-def _bench_config(data: Path, output: Path, method: str, seed: int, iterations: int) -> Any:
+def _bench_config(data: Path, output: Path, method: str, seed: int, iterations: int, attack: bool) -> Any:
     from stealth_ns.attack.config import AttackConfig
     from stealth_ns.poisoning.dataset_copy import open_source
     from stealth_ns.poisoning.setup import trainer_config
 
-    config = trainer_config(open_source(data), AttackConfig(), method, seed)
+    config = trainer_config(open_source(data), AttackConfig(enabled=attack), method, seed)
     config.max_num_iterations = iterations
     config.output_dir = output
     config.experiment_name, config.timestamp = "bench-train", "run"
@@ -247,8 +247,12 @@ def run_train_benchmark(
     seed: int = 0,
     threads: int | None = None,
     json_path: Path | None = None,
+    preset: str = "orbit",
+    resolution: str | None = None,
+    attack: bool = True,
 ) -> TrainBenchResult:
-    """Train ``method`` on ``data`` (None: the generated orbit scene) and time ``steps`` steps after
+    """Train ``method`` on ``data`` (None: the generated scene ``preset`` at ``resolution``, its default
+    when None) with its default attack (``attack`` False: the clean run) and time ``steps`` steps after
     ``warmup``; prints progress, returns (and writes as JSON) the measurements."""
     from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackLocation
     from tqdm import tqdm
@@ -264,14 +268,15 @@ def run_train_benchmark(
         if data is None:
             from stealth_ns.scenes import make_scene
 
-            data = Path(tmp) / "orbit"
-            make_scene(preset="orbit", output=data, seed=seed)
-            scene = f"generated orbit (seed {seed})"
+            data = Path(tmp) / preset
+            made = make_scene(preset=preset, output=data, seed=seed, resolution=resolution)
+            scene = f"generated {preset} {made.width}x{made.height} (seed {seed})"
         else:
             scene = str(data)
+        scene += "" if attack else ", clean run"
         from stealth_ns.poisoning.setup import setup_trainer
 
-        config = _bench_config(data, Path(tmp) / "runs", method, seed, warmup + steps + 1)
+        config = _bench_config(data, Path(tmp) / "runs", method, seed, warmup + steps + 1, attack)
         trainer = setup_trainer(config)
         _instrument(trainer, TIMER)
         TIMER.steps = []

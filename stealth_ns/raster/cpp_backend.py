@@ -37,6 +37,7 @@ import torch
 from torch import Tensor
 
 from stealth_ns.raster.projection import SHCoefficients
+from stealth_ns.raster.tiles import Footprint
 from stealth_ns.step_timing import phase
 
 __all__ = [
@@ -331,13 +332,23 @@ def isect_tiles_cpp(
     tile_size: int,
     tile_width: int,
     tile_height: int,
+    footprint: Footprint | None = None,
 ) -> tuple[Tensor, Tensor]:
-    """gsplat's ``isect_tiles`` (sorted) + ``isect_offset_encode`` on the CPU.
+    """gsplat's ``isect_tiles`` (sorted) + ``isect_offset_encode`` on the CPU; with ``footprint`` only
+    the pairs whose tile the Gaussian's alpha >= 1/255 footprint reaches (:mod:`stealth_ns.raster.tiles`).
 
     Returns ``(isect_offsets [C, tile_height, tile_width] int32, flatten_ids [n_isects] int32)``,
     sorted by (camera, tile, depth), ties in depth by Gaussian index.
     """
     ext = _require()
+    extra = {}
+    if footprint is not None:
+        extra = {
+            "conics": _f32(footprint.conics.detach()),
+            "opacities": _f32(footprint.opacities.detach()),
+            "image_width": int(footprint.width),
+            "image_height": int(footprint.height),
+        }
     offsets, flatten_ids, _ = ext.isect_tiles(
         _f32(means2d.detach()),
         _i32(radii.detach()),
@@ -345,6 +356,7 @@ def isect_tiles_cpp(
         int(tile_size),
         int(tile_width),
         int(tile_height),
+        **extra,
     )
     return offsets, flatten_ids
 

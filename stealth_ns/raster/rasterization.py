@@ -30,7 +30,7 @@ from stealth_ns.raster.projection import (
     quat_scale_to_covar,
     spherical_harmonics,
 )
-from stealth_ns.raster.tiles import isect_tiles, tile_grid
+from stealth_ns.raster.tiles import Footprint, isect_tiles, tile_grid
 from stealth_ns.raster.torch_backend import rasterize_to_pixels_torch
 from stealth_ns.step_timing import phase
 
@@ -215,7 +215,11 @@ def _rasterize_cpu(
     tile_width, tile_height = tile_grid(width, height, tile_size)
     isect, raster = _cpu_kernels(name)
     with phase("tile sort"):
-        isect_offsets, flatten_ids = isect(means2d, radii, depths, tile_size, tile_width, tile_height)
+        # only the tiles each Gaussian's alpha >= 1/255 footprint reaches: the same pixels, fewer visits
+        footprint = Footprint(conics.detach(), opac.detach(), width, height)
+        isect_offsets, flatten_ids = isect(
+            means2d, radii, depths, tile_size, tile_width, tile_height, footprint
+        )
     with phase("rasterize forward"):
         render_colors, render_alphas = raster(
             means2d,

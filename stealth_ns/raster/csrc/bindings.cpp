@@ -6,6 +6,7 @@
 #include "project_cpu.h"
 #include "rasterize_cpu.h"
 #include "ssim_cpu.h"
+#include <ATen/ops/empty.h>
 
 #include <torch/csrc/utils/pybind.h>
 
@@ -25,7 +26,9 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("last_ids"), py::arg("v_render_colors"), py::arg("v_render_alphas"), py::arg("cull") = true,
           py::arg("mode") = 0, py::arg("n_threads") = 0);
     m.def("isect_tiles", &stealth_ns::isect_tiles, py::arg("means2d"), py::arg("radii"), py::arg("depths"),
-          py::arg("tile_size"), py::arg("tile_width"), py::arg("tile_height"), py::arg("n_threads") = 0);
+          py::arg("tile_size"), py::arg("tile_width"), py::arg("tile_height"), py::arg("n_threads") = 0,
+          py::arg("conics") = at::empty({0}), py::arg("opacities") = at::empty({0}), py::arg("image_width") = 0,
+          py::arg("image_height") = 0);
     m.def("project_fwd", &stealth_ns::project_fwd, py::arg("means"), py::arg("quats"), py::arg("scales"),
           py::arg("viewmats"), py::arg("Ks"), py::arg("width"), py::arg("height"), py::arg("eps2d"),
           py::arg("near_plane"), py::arg("far_plane"), py::arg("radius_clip"));

@@ -958,6 +958,76 @@ TileRects tile_rects(
     return rc;
 }
 
+// The tiles of each Gaussian's rectangle that its footprint reaches (Speedy-Splat's AccuTile, with the
+// rasterizer's own footprint): for each tile row of the rectangle, the hull [bx0, bx1) of the tile
+// columns whose pixels some row span of :func:`prep_spans` reaches (the spans the rasterizer visits, in
+// global columns).  A pair outside it would visit no pixel in the forward or the backward, so leaving
+// it out of the lists changes no image and no gradient; a Gaussian of opacity < 1/255 (kSkip) has no
+// pairs, one whose footprint cannot be bounded (kFull) keeps its rectangle.  Rows of a Gaussian start
+// at band_off[i] (band_off[i + 1] - band_off[i] == its rectangle's height, or 0 for the whole
+// rectangle); tiles_per_gauss and the rectangles are updated to the pairs kept.
+struct Bands {
+    std::vector<int64_t> off;
+    std::vector<int32_t> x0, x1;
+};
+
+Bands footprint_bands(
+    int64_t CN, const float *m, const float *con, const float *opa, int W, int H, int ts, TileRects &rc,
+    int32_t *tpg, int nt
+) {
+    Bands bd;
+    bd.off.assign((size_t)CN + 1, 0);
+    std::vector<GPrep> prep((size_t)CN);
+#pragma omp parallel for schedule(static) num_threads(nt)
+    for (int64_t i = 0; i < CN; ++i) {
+        if (tpg[i] <= 0) continue;
+        prep[i] = make_prep(m + 2 * i, con + 3 * i, opa[i], (float)(W + H), true);
+        if (prep[i].kind == kSkip) {
+            tpg[i] = 0;
+            rc.x1[i] = rc.x0[i];
+            rc.y1[i] = rc.y0[i];
+        }
+    }
+    for (int64_t i = 0; i < CN; ++i) {
+        const bool banded = tpg[i] > 0 && prep[i].kind == kEllipse;
+        bd.off[i + 1] = bd.off[i] + (banded ? rc.y1[i] - rc.y0[i] : 0);
+    }
+    bd.x0.resize((size_t)bd.off[CN]);
+    bd.x1.resize((size_t)bd.off[CN]);
+#pragma omp parallel num_threads(nt)
+    {
+        std::vector<int32_t> lo((size_t)(ts + VW)), hi((size_t)(ts + VW));
+#pragma omp for schedule(dynamic, 256)
+        for (int64_t i = 0; i < CN; ++i) {
+            if (bd.off[i + 1] == bd.off[i]) continue;
+            const int32_t rx0 = rc.x0[i], rx1 = rc.x1[i];
+            int32_t n = 0;
+            for (int32_t ty = rc.y0[i]; ty < rc.y1[i]; ++ty) {
+                const int y_base = ty * ts, ty1 = std::min(y_base + ts, H);
+                int32_t bx0 = rx1, bx1 = rx0;
+                if (ty1 > y_base) {
+                    int r0, r1;
+                    prep_spans(prep[i], 0, W, y_base, ty1, r0, r1, lo.data(), hi.data());
+                    for (int r = r0 - y_base; r < r1 - y_base; ++r) {
+                        if (hi[r] <= lo[r]) continue;
+                        bx0 = std::min(bx0, lo[r] / ts);
+                        bx1 = std::max(bx1, (hi[r] - 1) / ts + 1);
+                    }
+                }
+                bx0 = std::max(bx0, rx0);
+                bx1 = std::min(bx1, rx1);
+                if (bx1 < bx0) bx1 = bx0;
+                const int64_t k = bd.off[i] + (ty - rc.y0[i]);
+                bd.x0[k] = bx0;
+                bd.x1[k] = bx1;
+                n += bx1 - bx0;
+            }
+            tpg[i] = n;
+        }
+    }
+    return bd;
+}
+
 // Per camera, the Gaussians with tiles in (depth, index) order: stable LSD radix sort (4 x 8 bits) of
 // an order-preserving uint32 image of the float depth.  For positive depths (the only ones with
 // radii > 0 when near_plane > 0) this is gsplat's order (its key is the float's bit pattern); for
@@ -1017,9 +1087,10 @@ std::vector<int32_t> depth_order(
 // tile, and after a prefix sum writes them from its own cursor, which lies after the cursors of
 // threads t' < t: every list stays in depth order, the same for any thread count.
 std::vector<at::Tensor> bin_by_tile(
-    int64_t C, int64_t N, int64_t tile_width, int64_t tile_height, const TileRects &rc,
+    int64_t C, int64_t N, int64_t tile_width, int64_t tile_height, const TileRects &rc, const Bands &bd,
     const int32_t *order, const std::vector<int64_t> &n_live, const at::TensorOptions &iopt, int nt
 ) {
+    const bool banded = !bd.off.empty();
     const int64_t n_tiles = tile_width * tile_height, n_bins = C * n_tiles;
     auto offsets = at::empty({C, tile_height, tile_width}, iopt);
     int32_t *off = offsets.data_ptr<int32_t>();
@@ -1039,9 +1110,12 @@ std::vector<at::Tensor> bin_by_tile(
                 const int64_t s0 = n_live[c] * t / T, s1 = n_live[c] * (t + 1) / T;
                 for (int64_t s = s0; s < s1; ++s) {
                     const int64_t gi = c * N + o[s];
-                    const int32_t x0 = x0s[gi], x1 = x1s[gi], y1 = y1s[gi];
-                    for (int32_t y = y0s[gi]; y < y1; ++y) {
+                    const int32_t y0 = y0s[gi], y1 = y1s[gi];
+                    const bool narrowed = banded && bd.off[gi + 1] > bd.off[gi];
+                    for (int32_t y = y0; y < y1; ++y) {
                         const int64_t row = c * n_tiles + (int64_t)y * tile_width;
+                        const int64_t k = narrowed ? bd.off[gi] + (y - y0) : 0;
+                        const int32_t x0 = narrowed ? bd.x0[k] : x0s[gi], x1 = narrowed ? bd.x1[k] : x1s[gi];
                         for (int32_t x = x0; x < x1; ++x) on_pair(row + x, (int32_t)gi);
                     }
                 }
@@ -1077,7 +1151,8 @@ std::vector<at::Tensor> bin_by_tile(
 
 std::vector<at::Tensor> isect_tiles(
     const at::Tensor &means2d, const at::Tensor &radii, const at::Tensor &depths, int64_t tile_size,
-    int64_t tile_width, int64_t tile_height, int64_t n_threads
+    int64_t tile_width, int64_t tile_height, int64_t n_threads, const at::Tensor &conics,
+    const at::Tensor &opacities, int64_t image_width, int64_t image_height
 ) {
     check_cpu_f32(means2d, "means2d");
     check_cpu_i32(radii, "radii");
@@ -1092,13 +1167,26 @@ std::vector<at::Tensor> isect_tiles(
     auto iopt = means2d.options().dtype(at::kInt);
     auto tiles_per_gauss = at::empty({C, N}, iopt);
     int32_t *tpg = tiles_per_gauss.data_ptr<int32_t>();
-    const TileRects rc = tile_rects(
+    TileRects rc = tile_rects(
         C * N, means2d.data_ptr<float>(), radii.data_ptr<int32_t>(), (float)tile_size, tile_width, tile_height,
         tpg, nt
     );
+    Bands bd;  // empty: every pair of the rectangles (gsplat's lists)
+    if (conics.defined() && conics.numel() > 0) {
+        check_cpu_f32(conics, "conics");
+        check_cpu_f32(opacities, "opacities");
+        TORCH_CHECK(conics.numel() == C * N * 3 && opacities.numel() == C * N, "conics/opacities must be [C, N, 3]/[C, N]");
+        TORCH_CHECK(image_width > 0 && image_height > 0, "the footprint needs the image size");
+        TORCH_CHECK(tile_width * tile_size >= image_width && tile_height * tile_size >= image_height, "tile grid smaller than the image");
+        bd = footprint_bands(
+            C * N, means2d.data_ptr<float>(), conics.data_ptr<float>(), opacities.data_ptr<float>(),
+            (int)image_width, (int)image_height, (int)tile_size, rc, tpg, nt
+        );
+    }
     std::vector<int64_t> n_live;
     const std::vector<int32_t> order = depth_order(C, N, tpg, depths.data_ptr<float>(), n_live, nt);
-    std::vector<at::Tensor> lists = bin_by_tile(C, N, tile_width, tile_height, rc, order.data(), n_live, iopt, nt);
+    std::vector<at::Tensor> lists =
+        bin_by_tile(C, N, tile_width, tile_height, rc, bd, order.data(), n_live, iopt, nt);
     const at::Tensor &offsets = lists[0], &flatten_ids = lists[1];
     return {offsets, flatten_ids, tiles_per_gauss};
 }

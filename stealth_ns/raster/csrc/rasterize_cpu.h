@@ -27,10 +27,13 @@ std::vector<at::Tensor> rasterize_bwd(
     int64_t n_threads
 );
 
-// (isect_offsets [C, tiles_y, tiles_x] int32, flatten_ids [n_isects] int32, tiles_per_gauss [C, N] int32)
+// (isect_offsets [C, tiles_y, tiles_x] int32, flatten_ids [n_isects] int32, tiles_per_gauss [C, N] int32).
+// With conics [C, N, 3] and opacities [C, N] (empty tensors: not used) only the pairs whose tile the
+// Gaussian's alpha >= 1/255 footprint reaches (image_width x image_height pixels) are listed.
 std::vector<at::Tensor> isect_tiles(
     const at::Tensor &means2d, const at::Tensor &radii, const at::Tensor &depths, int64_t tile_size,
-    int64_t tile_width, int64_t tile_height, int64_t n_threads
+    int64_t tile_width, int64_t tile_height, int64_t n_threads, const at::Tensor &conics,
+    const at::Tensor &opacities, int64_t image_width, int64_t image_height
 );
 
 }  // namespace stealth_ns
