@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from stealth_ns.raster.projection import SHCoefficients
-from stealth_ns.raster.tiles import Footprint
+from stealth_ns.raster.tiles import FOOTPRINT_MIN_TILES, Footprint
 from stealth_ns.step_timing import phase
 
 __all__ = [
@@ -64,7 +64,13 @@ _HEADERS = (*(_CSRC / f"{name}_cpu.h" for name in _KERNELS), _CSRC / "tensor_che
 # forward and backward loops); it also makes the results bitwise identical whatever the target ISA.
 # -march=native (measured: 5x faster than baseline x86-64, whose SSE2 splits the 8-wide vectors)
 # is safe because the cache key includes the CPU; if the compiler rejects it we retry without.
-_BASE_CFLAGS = ["-O3", "-fopenmp", "-ffp-contract=off", "-fno-math-errno"]
+_BASE_CFLAGS = [
+    "-O3",
+    "-fopenmp",
+    "-ffp-contract=off",
+    "-fno-math-errno",
+    f"-DSTEALTH_NS_FOOTPRINT_MIN_TILES={FOOTPRINT_MIN_TILES}",  # one value for the kernel and tiles.py
+]
 _FLAG_SETS = (["-march=native"], [])
 _CFLAGS = _BASE_CFLAGS + _FLAG_SETS[0]
 _LDFLAGS = ["-fopenmp"]

@@ -216,7 +216,8 @@ def _rasterize_cpu(
     isect, raster = _cpu_kernels(name)
     with phase("tile sort"):
         # only the tiles each Gaussian's alpha >= 1/255 footprint reaches: the same pixels, fewer visits
-        footprint = Footprint(conics.detach(), opac.detach(), width, height)
+        opac_rows = opac.contiguous()  # [C, N], as the rasterizer blends them
+        footprint = Footprint(conics.detach(), opac_rows.detach(), width, height)
         isect_offsets, flatten_ids = isect(
             means2d, radii, depths, tile_size, tile_width, tile_height, footprint
         )
@@ -225,7 +226,7 @@ def _rasterize_cpu(
             means2d,
             conics,
             feats.contiguous(),
-            opac.contiguous(),
+            opac_rows,
             width,
             height,
             tile_size,

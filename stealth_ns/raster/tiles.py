@@ -11,7 +11,8 @@ the Gaussian can reach with alpha >= 1/255: the ellipse ``sigma <= log(255 opaci
 absorb float rounding and visited row by row as ``csrc/rasterize_cpu.cpp`` does (``make_prep``,
 ``prep_spans``; the hull of the tile columns of a tile row's spans), inside gsplat's 3-sigma square.
 A pair left out would visit no pixel, so every image and gradient stays the same, bit for bit, and a
-Gaussian of opacity < 1/255 is in no list.
+Gaussian of opacity < 1/255 is in no list. A Gaussian of fewer than :data:`FOOTPRINT_MIN_TILES` tiles
+keeps them (its footprint is not worth computing).
 """
 
 from __future__ import annotations
@@ -24,6 +25,9 @@ from torch import Tensor
 
 ALPHA_MIN = 1.0 / 255.0
 SPAN_PAD = 0.05  # pixels added to each side of a row's span (csrc: kSpanPad)
+FOOTPRINT_MIN_TILES = 9
+"""A Gaussian whose 3-sigma square covers fewer tiles keeps them all: computing its footprint costs about
+what the pair visits it would save (measured with ``stealth-ns bench train``, docs/training_step.md)."""
 
 
 @dataclass(frozen=True)
@@ -99,7 +103,9 @@ def isect_tiles(
     x0 = tile_min.reshape(-1, 2)[band_gauss, 0]
     x1 = tile_max.reshape(-1, 2)[band_gauss, 0]
     if footprint is not None and len(band_gauss):
-        x0, x1 = _footprint_columns(footprint, means2d, tile_size, band_gauss, band_y, x0, x1)
+        area = rows * (tile_max[..., 0] - tile_min[..., 0]).reshape(-1)
+        single = area[band_gauss] < FOOTPRINT_MIN_TILES
+        x0, x1 = _footprint_columns(footprint, means2d, tile_size, band_gauss, band_y, x0, x1, single)
     counts = x1 - x0
     n_tiles = tile_width * tile_height
     total = int(counts.sum())
@@ -127,10 +133,19 @@ def isect_tiles(
 
 
 def _footprint_columns(
-    fp: Footprint, means2d: Tensor, tile_size: int, gauss: Tensor, ty: Tensor, x0: Tensor, x1: Tensor
+    fp: Footprint,
+    means2d: Tensor,
+    tile_size: int,
+    gauss: Tensor,
+    ty: Tensor,
+    x0: Tensor,
+    x1: Tensor,
+    single: Tensor,
 ) -> tuple[Tensor, Tensor]:
     """Each band's tile columns ``[x0, x1)`` (band ``k``: Gaussian ``gauss[k]`` (flat), tile row ``ty[k]``)
-    narrowed to the hull of the columns its footprint's row spans reach (see the module docstring)."""
+    narrowed to the hull of the columns its footprint's row spans reach (see the module docstring); a
+    small Gaussian (``single[k]``: fewer tiles than FOOTPRINT_MIN_TILES) keeps them unless its opacity
+    is below 1/255."""
     prep = _footprint_prep(fp, means2d.reshape(-1, 2))
     kind, mx, my, two_a_teff, det, inv_a, b_over_a, ext_y = (v[gauss] for v in prep)
     ts, f32 = tile_size, torch.float32
@@ -153,7 +168,7 @@ def _footprint_columns(
     big = torch.iinfo(torch.long).max
     hx0 = torch.where(hit, flo // ts, big).amin(dim=1)
     hx1 = torch.where(hit, (fhi - 1) // ts + 1, -1).amax(dim=1)
-    ellipse, skip = kind == 2, kind == 0
+    ellipse, skip = (kind == 2) & ~single, kind == 0
     nx0 = torch.where(ellipse, torch.maximum(hx0, x0), x0)
     nx1 = torch.where(ellipse, torch.minimum(hx1, x1), x1)
     nx1 = torch.where(skip, nx0, torch.maximum(nx1, nx0))

@@ -914,16 +914,18 @@ namespace {
 // ---------------------------------------------------------------------------
 // Tile rectangle [x0, x1) x [y0, y1) of each Gaussian, as gsplat computes it (float division, floor /
 // ceil, clamp to the grid; empty for radius 0), and its tile count.  Branch free, so GCC vectorises it.
-struct TileRects {
-    std::vector<int32_t> x0, y0, x1, y1;
+// One record per Gaussian, read together when the lists are filled (in depth order: random access).
+struct TileRect {
+    int32_t x0, y0, x1, y1;
+    int64_t band;  // first of its narrowed tile rows (Bands), or -1: every tile of the rectangle
 };
+using TileRects = std::vector<TileRect>;
 
 TileRects tile_rects(
     int64_t CN, const float *m, const int32_t *r, float tsf, int64_t tile_width, int64_t tile_height,
     int32_t *tpg, int nt
 ) {
-    TileRects rc{std::vector<int32_t>(CN), std::vector<int32_t>(CN), std::vector<int32_t>(CN),
-                 std::vector<int32_t>(CN)};
+    TileRects rc((size_t)CN);
     const vf tw = vset((float)tile_width), th = vset((float)tile_height), zero = vset(0.f);
     // clamp to [0, hi] with NaN -> 0, then truncate (the values are integral already)
     auto clampi = [&](vf v, vf hi) -> vi {
@@ -948,10 +950,7 @@ TileRects tile_rects(
         const vi c = clampi(vceil(tx + tr), tw) & live, d = clampi(vceil(ty + tr), th) & live;
         const vi n = (d - b) * (c - a);
         for (int l = 0; l < L; ++l) {
-            rc.x0[i0 + l] = a[l];
-            rc.y0[i0 + l] = b[l];
-            rc.x1[i0 + l] = c[l];
-            rc.y1[i0 + l] = d[l];
+            rc[i0 + l] = TileRect{a[l], b[l], c[l], d[l], -1};
             tpg[i0 + l] = n[l];
         }
     }
@@ -962,14 +961,18 @@ TileRects tile_rects(
 // rasterizer's own footprint): for each tile row of the rectangle, the hull [bx0, bx1) of the tile
 // columns whose pixels some row span of :func:`prep_spans` reaches (the spans the rasterizer visits, in
 // global columns).  A pair outside it would visit no pixel in the forward or the backward, so leaving
-// it out of the lists changes no image and no gradient; a Gaussian of opacity < 1/255 (kSkip) has no
-// pairs, one whose footprint cannot be bounded (kFull) keeps its rectangle.  Rows of a Gaussian start
-// at band_off[i] (band_off[i + 1] - band_off[i] == its rectangle's height, or 0 for the whole
+// it out of the lists changes no image and no gradient.  A Gaussian of opacity < 1/255 (kSkip: alpha <
+// 1/255 everywhere) has no pairs; one of fewer than kFootprintMinTiles tiles keeps them (its footprint
+// is not worth computing); one whose footprint cannot be bounded (kFull) keeps its rectangle.  The rows
+// of a Gaussian start at off[i] (off[i + 1] - off[i]: its rectangle's height, or 0 when it keeps its
 // rectangle); tiles_per_gauss and the rectangles are updated to the pairs kept.
 struct Bands {
     std::vector<int64_t> off;
     std::vector<int32_t> x0, x1;
 };
+// Rectangles of fewer tiles keep them: a footprint costs about as much as four or five pair visits it
+// saves (bench train, orbit and a 1-MP scene; tiles.py: FOOTPRINT_MIN_TILES).
+constexpr int32_t kFootprintMinTiles = STEALTH_NS_FOOTPRINT_MIN_TILES;
 
 Bands footprint_bands(
     int64_t CN, const float *m, const float *con, const float *opa, int W, int H, int ts, TileRects &rc,
@@ -977,21 +980,15 @@ Bands footprint_bands(
 ) {
     Bands bd;
     bd.off.assign((size_t)CN + 1, 0);
-    std::vector<GPrep> prep((size_t)CN);
-#pragma omp parallel for schedule(static) num_threads(nt)
     for (int64_t i = 0; i < CN; ++i) {
-        if (tpg[i] <= 0) continue;
-        prep[i] = make_prep(m + 2 * i, con + 3 * i, opa[i], (float)(W + H), true);
-        if (prep[i].kind == kSkip) {
+        if (tpg[i] > 0 && opa[i] < kAlphaMin) {  // make_prep's kSkip
             tpg[i] = 0;
-            rc.x1[i] = rc.x0[i];
-            rc.y1[i] = rc.y0[i];
+            rc[i].x1 = rc[i].x0;
+            rc[i].y1 = rc[i].y0;
         }
+        bd.off[i + 1] = bd.off[i] + (tpg[i] >= kFootprintMinTiles ? rc[i].y1 - rc[i].y0 : 0);
     }
-    for (int64_t i = 0; i < CN; ++i) {
-        const bool banded = tpg[i] > 0 && prep[i].kind == kEllipse;
-        bd.off[i + 1] = bd.off[i] + (banded ? rc.y1[i] - rc.y0[i] : 0);
-    }
+    if (bd.off[CN] == 0) return Bands{};  // nothing to narrow: the rectangles as they are
     bd.x0.resize((size_t)bd.off[CN]);
     bd.x1.resize((size_t)bd.off[CN]);
 #pragma omp parallel num_threads(nt)
@@ -1000,24 +997,35 @@ Bands footprint_bands(
 #pragma omp for schedule(dynamic, 256)
         for (int64_t i = 0; i < CN; ++i) {
             if (bd.off[i + 1] == bd.off[i]) continue;
-            const int32_t rx0 = rc.x0[i], rx1 = rc.x1[i];
+            const GPrep p = make_prep(m + 2 * i, con + 3 * i, opa[i], (float)(W + H), true);
+            rc[i].band = bd.off[i];
+            const int32_t rx0 = rc[i].x0, rx1 = rc[i].x1;
             int32_t n = 0;
-            for (int32_t ty = rc.y0[i]; ty < rc.y1[i]; ++ty) {
+            for (int32_t ty = rc[i].y0; ty < rc[i].y1; ++ty) {
                 const int y_base = ty * ts, ty1 = std::min(y_base + ts, H);
-                int32_t bx0 = rx1, bx1 = rx0;
-                if (ty1 > y_base) {
-                    int r0, r1;
-                    prep_spans(prep[i], 0, W, y_base, ty1, r0, r1, lo.data(), hi.data());
-                    for (int r = r0 - y_base; r < r1 - y_base; ++r) {
-                        if (hi[r] <= lo[r]) continue;
-                        bx0 = std::min(bx0, lo[r] / ts);
-                        bx1 = std::max(bx1, (hi[r] - 1) / ts + 1);
+                int32_t bx0 = rx0, bx1 = rx1;  // kFull: the whole row of the rectangle
+                if (p.kind == kEllipse) {
+                    bx0 = rx1;
+                    bx1 = rx0;
+                    if (ty1 > y_base) {
+                        int r0, r1;
+                        prep_spans(p, 0, W, y_base, ty1, r0, r1, lo.data(), hi.data());
+                        int32_t first = W, last = 0;  // hull of the row spans, in pixels
+                        for (int r = r0 - y_base; r < r1 - y_base; ++r) {
+                            const bool some = hi[r] > lo[r];
+                            first = some && lo[r] < first ? lo[r] : first;
+                            last = some && hi[r] > last ? hi[r] : last;
+                        }
+                        if (last > first) {  // one division each, not two per row
+                            bx0 = first / ts;
+                            bx1 = (last - 1) / ts + 1;
+                        }
                     }
+                    bx0 = std::max(bx0, rx0);
+                    bx1 = std::min(bx1, rx1);
+                    if (bx1 < bx0) bx1 = bx0;
                 }
-                bx0 = std::max(bx0, rx0);
-                bx1 = std::min(bx1, rx1);
-                if (bx1 < bx0) bx1 = bx0;
-                const int64_t k = bd.off[i] + (ty - rc.y0[i]);
+                const int64_t k = bd.off[i] + (ty - rc[i].y0);
                 bd.x0[k] = bx0;
                 bd.x1[k] = bx1;
                 n += bx1 - bx0;
@@ -1090,15 +1098,14 @@ std::vector<at::Tensor> bin_by_tile(
     int64_t C, int64_t N, int64_t tile_width, int64_t tile_height, const TileRects &rc, const Bands &bd,
     const int32_t *order, const std::vector<int64_t> &n_live, const at::TensorOptions &iopt, int nt
 ) {
-    const bool banded = !bd.off.empty();
     const int64_t n_tiles = tile_width * tile_height, n_bins = C * n_tiles;
     auto offsets = at::empty({C, tile_height, tile_width}, iopt);
     int32_t *off = offsets.data_ptr<int32_t>();
     at::Tensor flatten_ids;
     std::vector<int64_t> cursors((size_t)(nt * n_bins), 0);  // per thread: counts, then cursors
     bool overflow = false;
-    const int32_t *__restrict__ x0s = rc.x0.data(), *__restrict__ x1s = rc.x1.data();
-    const int32_t *__restrict__ y0s = rc.y0.data(), *__restrict__ y1s = rc.y1.data();
+    const TileRect *__restrict__ rects = rc.data();
+    const int32_t *__restrict__ bx0s = bd.x0.data(), *__restrict__ bx1s = bd.x1.data();
 #pragma omp parallel num_threads(nt)
     {
         const int t = omp_get_thread_num(), T = omp_get_num_threads();
@@ -1110,12 +1117,11 @@ std::vector<at::Tensor> bin_by_tile(
                 const int64_t s0 = n_live[c] * t / T, s1 = n_live[c] * (t + 1) / T;
                 for (int64_t s = s0; s < s1; ++s) {
                     const int64_t gi = c * N + o[s];
-                    const int32_t y0 = y0s[gi], y1 = y1s[gi];
-                    const bool narrowed = banded && bd.off[gi + 1] > bd.off[gi];
-                    for (int32_t y = y0; y < y1; ++y) {
+                    const TileRect r = rects[gi];
+                    for (int32_t y = r.y0; y < r.y1; ++y) {
                         const int64_t row = c * n_tiles + (int64_t)y * tile_width;
-                        const int64_t k = narrowed ? bd.off[gi] + (y - y0) : 0;
-                        const int32_t x0 = narrowed ? bd.x0[k] : x0s[gi], x1 = narrowed ? bd.x1[k] : x1s[gi];
+                        const int64_t k = r.band + (y - r.y0);
+                        const int32_t x0 = r.band >= 0 ? bx0s[k] : r.x0, x1 = r.band >= 0 ? bx1s[k] : r.x1;
                         for (int32_t x = x0; x < x1; ++x) on_pair(row + x, (int32_t)gi);
                     }
                 }
