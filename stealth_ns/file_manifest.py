@@ -97,3 +97,9 @@ def remove_owned(root: Path, manifest: Manifest, present: Iterable[str]) -> None
     for folder in sorted(emptied, key=lambda q: -len(q.parts)):
         if folder.is_dir() and not folder.is_symlink() and not any(folder.iterdir()):
             folder.rmdir()
+
+
+def listing(paths: list[str], shown: int = 3) -> str:
+    """``a, b, c and 4 more``: the first ``shown`` of ``paths`` for a one-line message."""
+    more = f" and {len(paths) - shown} more" if len(paths) > shown else ""
+    return ", ".join(paths[:shown]) + more

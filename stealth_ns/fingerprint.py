@@ -66,11 +66,11 @@ def dataset_fingerprint(outputs: Any) -> dict[str, Any]:
     }
 
 
-def record_fingerprint(run_dir: Path, train_outputs: Any, data: Path | str | None = None) -> Path:
-    """Write ``run_dir/dataset.json`` with the fingerprint of the training split."""
+def record_fingerprint(run_dir: Path, train: dict[str, Any], data: Path | str | None = None) -> Path:
+    """Write ``run_dir/dataset.json`` with ``train``, the training split's :func:`dataset_fingerprint`."""
     path = Path(run_dir) / FINGERPRINT_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
-    record = {"data": None if data is None else str(data), "train": dataset_fingerprint(train_outputs)}
+    record = {"data": None if data is None else str(data), "train": train}
     write_json_atomic(path, record)
     return path
 

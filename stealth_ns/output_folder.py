@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -60,8 +61,6 @@ def remove_tree(path: Path, output: Path) -> None:
     """``shutil.rmtree(path)`` of something a command wrote under its ``--output`` earlier, refused
     (StealthNSError) when a symbolic link on the way from ``output`` would take the removal elsewhere:
     nothing outside ``--output`` is deleted. A link at ``path`` itself is removed, not followed."""
-    import shutil
-
     path, output = Path(path), Path(output)
     rel = Path(os.path.relpath(os.path.abspath(path), os.path.abspath(output)))
     if rel.parts[:1] == ("..",) or os.path.isabs(rel):

@@ -250,9 +250,7 @@ class StealthPipeline(VanillaPipeline):
             fail(err)
         if attrs.trainer is not None:  # clean or attacked: which dataset (stealth-ns report checks it)
             record_fingerprint(
-                Path(attrs.trainer.base_dir),
-                self.datamanager.train_dataparser_outputs,
-                self.datamanager.config.dataparser.data,
+                Path(attrs.trainer.base_dir), self.train_fingerprint, self.datamanager.config.dataparser.data
             )
             self._say_background()
         if not self.config.attack.enabled or not self.poison_views:
@@ -347,11 +345,16 @@ class StealthPipeline(VanillaPipeline):
             self._restored_record = json.loads(self._saved_state["attack_record"]) or None
 
     @functools.cached_property
+    def train_fingerprint(self) -> dict[str, Any]:
+        """The training split's :func:`~stealth_ns.fingerprint.dataset_fingerprint` (its images hashed
+        once: ``dataset.json`` and every checkpoint use it)."""
+        return dataset_fingerprint(self.datamanager.train_dataparser_outputs)
+
+    @property
     def train_images_fingerprint(self) -> dict[str, Any]:
-        """The training split's image fingerprint (count and content hash; poses left out: nerfstudio
-        changes undistorted cameras in place)."""
-        fingerprint = dataset_fingerprint(self.datamanager.train_dataparser_outputs)
-        return {k: fingerprint[k] for k in ("version", "n_images", "images")}
+        """The part of :attr:`train_fingerprint` a checkpoint keeps: image count and content hash (the
+        poses are left out: nerfstudio changes undistorted cameras in place)."""
+        return {k: self.train_fingerprint[k] for k in ("version", "n_images", "images")}
 
     def load_pipeline(self, loaded_state: dict[str, Any], step: int) -> None:
         """Load a checkpoint (resuming, or a run loaded for evaluation), refusing one of another

@@ -17,11 +17,13 @@ scaling) as the poses; ``applied_transform`` concerns the poses' *origin* frame 
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -397,24 +399,26 @@ def _ours(ply: Path) -> bool:
         return False
 
 
+def _ply_names(folder: Path) -> Iterator[Path]:
+    """``sparse_pc.ply``, ``sparse_pc_seeded.ply``, ``sparse_pc_seeded_2.ply``, ... in ``folder``."""
+    yield folder / PLY_NAME
+    yield folder / "sparse_pc_seeded.ply"
+    for k in itertools.count(2):
+        yield folder / f"sparse_pc_seeded_{k}.ply"
+
+
 def _replaceable_ply(folder: Path) -> Path:
     """``sparse_pc.ply`` unless it is a point cloud of the user's (not written by stealth-ns), else the
     first ``sparse_pc_seeded*.ply`` that is free or ours: --overwrite never replaces the user's points."""
-    for name in (PLY_NAME, "sparse_pc_seeded.ply", *(f"sparse_pc_seeded_{k}.ply" for k in range(2, 1000))):
-        if not (folder / name).exists() or _ours(folder / name):
-            return folder / name
+    for path in itertools.islice(_ply_names(folder), 1000):
+        if not path.exists() or _ours(path):
+            return path
     raise StealthNSError(f"{folder} holds 1000 seed point files: remove some")
 
 
 def _free_ply_name(folder: Path) -> Path:
-    """``sparse_pc.ply``, or ``sparse_pc_seeded.ply``, ``sparse_pc_seeded_2.ply``, ... if taken."""
-    for name in (PLY_NAME, "sparse_pc_seeded.ply"):
-        if not (folder / name).exists():
-            return folder / name
-    k = 2
-    while (folder / f"sparse_pc_seeded_{k}.ply").exists():
-        k += 1
-    return folder / f"sparse_pc_seeded_{k}.ply"
+    """The first of :func:`_ply_names` that does not exist."""
+    return next(path for path in _ply_names(folder) if not path.exists())
 
 
 def _check_poses_fit(ds: _Dataset, stats: dict[str, float]) -> None:

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.attack.record import AttackRecord
+from stealth_ns.checkpoints import checkpoint_steps
 from stealth_ns.datasets.frames import frame_transforms
 from stealth_ns.datasets.source import inspect_folder
 from stealth_ns.defences.detection import detection_metrics
@@ -50,7 +51,7 @@ def bench_runs(bench_output: Path) -> list[dict[str, Any]]:
     runs = []
     for key, run in doc.get("runs", {}).items():
         config = Path(run.get("config", ""))
-        if not config.is_file() or not any((config.parent / "nerfstudio_models").glob("*.ckpt")):
+        if not config.is_file() or not checkpoint_steps(config.parent / "nerfstudio_models"):
             continue
         metrics = run.get("metrics") or {}
         runs.append({"key": key, "scene": run["scene"], "clean": bool(run.get("clean")), "config": config,

@@ -33,7 +33,14 @@ import torch
 
 from stealth_ns.attack.record import RECORD_FILE, AttackRecord
 from stealth_ns.errors import StealthNSError
-from stealth_ns.file_manifest import files_under, foreign_files, read_manifest, remove_owned, write_manifest
+from stealth_ns.file_manifest import (
+    files_under,
+    foreign_files,
+    listing,
+    read_manifest,
+    remove_owned,
+    write_manifest,
+)
 from stealth_ns.image_io import read_image, save_image
 from stealth_ns.json_io import write_json_atomic
 
@@ -133,10 +140,9 @@ def check_output(source: SourceDataset, output: Path, overwrite: bool) -> Path:
             )
         foreign = foreign_files(out, read_manifest(out / FILES_RECORD), _present(out))
         if foreign:
-            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
             raise StealthNSError(
                 f"--output {output} holds files stealth-ns did not write there, or changed since (not in "
-                f"{FILES_RECORD}): {', '.join(foreign[:3])}{more}; --overwrite replaces only its own "
+                f"{FILES_RECORD}): {listing(foreign)}; --overwrite replaces only its own "
                 "files: move these away or give another folder"
             )
     return out

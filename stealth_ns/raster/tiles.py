@@ -23,7 +23,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-ALPHA_MIN = 1.0 / 255.0
+from stealth_ns.raster.torch_backend import ALPHA_MIN
+
 SPAN_PAD = 0.05  # pixels added to each side of a row's span (csrc: kSpanPad)
 FOOTPRINT_MIN_TILES = 9
 """A Gaussian whose 3-sigma square covers fewer tiles keeps them all: computing its footprint costs about
@@ -149,19 +150,19 @@ def _footprint_columns(
     prep = _footprint_prep(fp, means2d.reshape(-1, 2))
     kind, mx, my, two_a_teff, det, inv_a, b_over_a, ext_y = (v[gauss] for v in prep)
     ts, f32 = tile_size, torch.float32
+    half, pad = torch.tensor(0.5, dtype=f32), torch.tensor(SPAN_PAD, dtype=f32)  # float32, as in csrc
     # pixel rows of the band inside the image, then those prep_rows keeps ([C*N bands, ts])
     y_base = ty * ts
     y_end = torch.clamp(y_base + ts, max=fp.height)
-    lo_row = torch.ceil(my - ext_y - torch.tensor(0.5, dtype=f32) - torch.tensor(SPAN_PAD, dtype=f32))
-    hi_row = torch.floor(my + ext_y - torch.tensor(0.5, dtype=f32) + torch.tensor(SPAN_PAD, dtype=f32)) + 1
+    lo_row = torch.ceil(my - ext_y - half - pad)
+    hi_row = torch.floor(my + ext_y - half + pad) + 1
     i = y_base[:, None] + torch.arange(ts, device=ty.device)[None, :]  # [B, ts] global pixel rows
     live = (i < y_end[:, None]) & (i.to(f32) >= lo_row[:, None]) & (i.to(f32) < hi_row[:, None])
-    dy = my[:, None] - (i.to(f32) + torch.tensor(0.5, dtype=f32))
+    dy = my[:, None] - (i.to(f32) + half)
     disc = two_a_teff[:, None] - det[:, None] * dy * dy
     inside = disc >= 0
     span = torch.sqrt(torch.where(inside, disc, torch.zeros_like(disc))) * inv_a[:, None]
     centre = mx[:, None] + b_over_a[:, None] * dy
-    half, pad = torch.tensor(0.5, dtype=f32), torch.tensor(SPAN_PAD, dtype=f32)
     flo = torch.clamp(torch.ceil(centre - span - half - pad), 0, fp.width).long()
     fhi = torch.clamp(torch.floor(centre + span - half + pad) + 1, 0, fp.width).long()
     hit = live & inside & (fhi > flo)
@@ -195,9 +196,7 @@ def _footprint_prep(fp: Footprint, means2d: Tensor) -> tuple[Tensor, ...]:
     ok = (a > 0) & (c > 0) & (det > 0) & torch.isfinite(det) & torch.isfinite(o)
     ok &= torch.isfinite(mx) & torch.isfinite(my) & torch.isfinite(teff) & torch.isfinite(ext) & (ext <= 1e7)
     kind = torch.where(ok, 2, 1)
-    kind = torch.where(o32 < torch.tensor(ALPHA_MIN, dtype=torch.float32), 0, kind)
-    f32 = torch.float32
-    with torch.no_grad():
-        terms = (2.0 * a * teff, det, 1.0 / a, b / a, ext)
-        two_a_teff, det32, inv_a, b_over_a, ext_y = (torch.nan_to_num(v).to(f32) for v in terms)
+    kind = torch.where(o32 < torch.tensor(ALPHA_MIN, dtype=torch.float32), 0, kind)  # make_prep's kSkip
+    terms = (2.0 * a * teff, det, 1.0 / a, b / a, ext)
+    two_a_teff, det32, inv_a, b_over_a, ext_y = (torch.nan_to_num(v).to(torch.float32) for v in terms)
     return kind, mx, my, two_a_teff, det32, inv_a, b_over_a, ext_y

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from stealth_ns.attack.record import AttackRecord
+from stealth_ns.checkpoints import checkpoint_steps
 from stealth_ns.errors import StealthNSError, StealthNSExit
 from stealth_ns.fingerprint import dataset_fingerprint, recorded_fingerprint
 from stealth_ns.render_view import render_camera
@@ -72,7 +73,7 @@ def load_run(config_path: Path) -> LoadedRun:
     if not config_path.is_file():
         raise StealthNSError(f"no run config at {config_path} (give the config.yml of a training run)")
     models = config_path.parent / "nerfstudio_models"
-    if not models.is_dir() or not any(models.glob("*.ckpt")):
+    if not checkpoint_steps(models):  # the names find_checkpoint reads
         raise StealthNSError(
             f"{config_path.parent} has no checkpoint (nerfstudio_models/*.ckpt): not trained?"
         )

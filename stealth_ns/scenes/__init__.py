@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.file_manifest import listing
 from stealth_ns.image_io import save_png
 from stealth_ns.scenes.presets import (
     BLENDER_PRESETS,
@@ -137,10 +138,9 @@ def _check_output(output: Path, overwrite: bool) -> None:
             raise StealthNSError(f"output folder {output} exists and is not empty; pass --overwrite")
         foreign = foreign_files(output) if output.is_dir() else []
         if foreign:
-            more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
             raise StealthNSError(
                 f"output folder {output} holds files stealth-ns did not write (or that changed since; not "
-                f"recorded in {MANIFEST}): {', '.join(foreign[:3])}{more}; --overwrite replaces only the "
+                f"recorded in {MANIFEST}): {listing(foreign)}; --overwrite replaces only the "
                 "generator's own files: move these away or choose another folder"
             )
         output.mkdir(parents=True, exist_ok=True)

@@ -963,15 +963,14 @@ TileRects tile_rects(
 // global columns).  A pair outside it would visit no pixel in the forward or the backward, so leaving
 // it out of the lists changes no image and no gradient.  A Gaussian of opacity < 1/255 (kSkip: alpha <
 // 1/255 everywhere) has no pairs; one of fewer than kFootprintMinTiles tiles keeps them (its footprint
-// is not worth computing); one whose footprint cannot be bounded (kFull) keeps its rectangle.  The rows
-// of a Gaussian start at off[i] (off[i + 1] - off[i]: its rectangle's height, or 0 when it keeps its
-// rectangle); tiles_per_gauss and the rectangles are updated to the pairs kept.
+// is not worth computing); one whose footprint cannot be bounded (kFull) keeps its rectangle.  A narrowed
+// Gaussian's tile rows are bands x0/x1[rc[i].band + row] (one per row of its rectangle);
+// tiles_per_gauss and the rectangles are updated to the pairs kept.
 struct Bands {
-    std::vector<int64_t> off;
     std::vector<int32_t> x0, x1;
 };
-// Rectangles of fewer tiles keep them: a footprint costs about as much as four or five pair visits it
-// saves (bench train, orbit and a 1-MP scene; tiles.py: FOOTPRINT_MIN_TILES).
+// Rectangles of fewer tiles keep them: a footprint costs about what the pair visits it saves (bench
+// train, orbit and a 1-MP scene; tiles.py: FOOTPRINT_MIN_TILES).
 constexpr int32_t kFootprintMinTiles = STEALTH_NS_FOOTPRINT_MIN_TILES;
 
 Bands footprint_bands(
@@ -979,26 +978,26 @@ Bands footprint_bands(
     int32_t *tpg, int nt
 ) {
     Bands bd;
-    bd.off.assign((size_t)CN + 1, 0);
+    std::vector<int64_t> off((size_t)CN + 1, 0);  // off[i]: Gaussian i's first band
     for (int64_t i = 0; i < CN; ++i) {
         if (tpg[i] > 0 && opa[i] < kAlphaMin) {  // make_prep's kSkip
             tpg[i] = 0;
             rc[i].x1 = rc[i].x0;
             rc[i].y1 = rc[i].y0;
         }
-        bd.off[i + 1] = bd.off[i] + (tpg[i] >= kFootprintMinTiles ? rc[i].y1 - rc[i].y0 : 0);
+        off[i + 1] = off[i] + (tpg[i] >= kFootprintMinTiles ? rc[i].y1 - rc[i].y0 : 0);
     }
-    if (bd.off[CN] == 0) return Bands{};  // nothing to narrow: the rectangles as they are
-    bd.x0.resize((size_t)bd.off[CN]);
-    bd.x1.resize((size_t)bd.off[CN]);
+    if (off[CN] == 0) return bd;  // nothing to narrow: the rectangles as they are
+    bd.x0.resize((size_t)off[CN]);
+    bd.x1.resize((size_t)off[CN]);
 #pragma omp parallel num_threads(nt)
     {
         std::vector<int32_t> lo((size_t)(ts + VW)), hi((size_t)(ts + VW));
 #pragma omp for schedule(dynamic, 256)
         for (int64_t i = 0; i < CN; ++i) {
-            if (bd.off[i + 1] == bd.off[i]) continue;
+            if (off[i + 1] == off[i]) continue;
             const GPrep p = make_prep(m + 2 * i, con + 3 * i, opa[i], (float)(W + H), true);
-            rc[i].band = bd.off[i];
+            rc[i].band = off[i];
             const int32_t rx0 = rc[i].x0, rx1 = rc[i].x1;
             int32_t n = 0;
             for (int32_t ty = rc[i].y0; ty < rc[i].y1; ++ty) {
@@ -1025,7 +1024,7 @@ Bands footprint_bands(
                     bx1 = std::min(bx1, rx1);
                     if (bx1 < bx0) bx1 = bx0;
                 }
-                const int64_t k = bd.off[i] + (ty - rc[i].y0);
+                const int64_t k = off[i] + (ty - rc[i].y0);
                 bd.x0[k] = bx0;
                 bd.x1[k] = bx1;
                 n += bx1 - bx0;
