@@ -124,7 +124,7 @@ class BenchTrain:
 
     def main(self) -> None:
         from stealth_ns.bench.train_step import run_train_benchmark
-        from stealth_ns.scenes import BLENDER_PRESETS, PRESETS, parse_resolution
+        from stealth_ns.scenes import PRESETS, parse_resolution
 
         if self.json is not None:
             check_file_writable(self.json, "--json")
@@ -132,9 +132,8 @@ class BenchTrain:
             raise StealthNSError(f"--data {self.data} does not exist")
         if self.data is not None and (self.preset != "orbit" or self.resolution is not None):
             raise StealthNSError("--preset and --resolution choose a generated scene: not with --data")
-        usable = [p for p in PRESETS if p not in BLENDER_PRESETS]  # nerfstudio-data scenes
-        if self.preset not in usable:
-            raise StealthNSError(f"--preset {self.preset!r}: choose one of {', '.join(usable)}")
+        if self.preset not in PRESETS:
+            raise StealthNSError(f"--preset {self.preset!r}: choose one of {', '.join(PRESETS)}")
         if self.resolution is not None:
             parse_resolution(self.resolution)  # a malformed one before the scene is made
         result = run_train_benchmark(

@@ -201,6 +201,10 @@ class StealthPipeline(VanillaPipeline):
             except StealthNSError as err:
                 fail(err)
         super().__init__(config, device, *args, **kwargs)
+        if isinstance(self.model, StealthSplatModel):
+            # chosen (and the compiled kernels built, ~30 s after an update) now, not in the first step:
+            # the build used to be timed as the injection's
+            _ = self.model.rasterizer_backend
         self.poison_views: list[PoisonView] = []
         self.support_views: dict[int, list[int]] = {}  # poisoned view -> its support views (train indices)
         self.attack_dir: Path | None = None

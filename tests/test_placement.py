@@ -15,7 +15,7 @@ from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid
 from stealth_ns.attack.injection import PoisonView, median_scene_depth, place_poison
 from stealth_ns.attack.ray_search import min_density_points
-from stealth_ns.attack.visibility import CameraDepths, count_seeing_cameras
+from stealth_ns.attack.visibility import CameraDepths, count_seeing_cameras, count_seeing_cameras_reference
 from stealth_ns.raster.projection import viewmat_from_c2w
 
 
@@ -54,6 +54,48 @@ def test_count_seeing_cameras_frustum_occlusion_and_empty_pixels():
     counts = count_seeing_cameras(pts, cams, margin=0.05)
     assert counts.tolist() == [2, 3, 2, 0, 3]
     assert count_seeing_cameras(pts[None], cams).shape == (1, 5)
+
+
+def test_count_seeing_cameras_compiled_equals_reference():
+    """The compiled kernel counts exactly what the torch reference counts: cameras of different sizes
+    around the points, points behind cameras, on image borders, on the depth bound and off screen."""
+    from stealth_ns.raster.cpp_backend import load_extension
+
+    if load_extension() is None:
+        pytest.skip("compiled kernels unavailable")
+    g = torch.Generator().manual_seed(3)
+    cams = []
+    for j in range(7):
+        c2w = torch.eye(4)
+        angle = 2 * math.pi * j / 7
+        eye = torch.tensor([3 * math.cos(angle), 0.3 * j - 1, 3 * math.sin(angle)])
+        forward = -eye / eye.norm()
+        right = torch.linalg.cross(forward, torch.tensor([0.0, 1.0, 0.0]))
+        right = right / right.norm()
+        c2w[:3, :3] = torch.stack([right, torch.linalg.cross(forward, right), forward], dim=1)
+        c2w[:3, 3] = eye
+        h, w = 12 + 3 * j, 20 - j
+        K = torch.tensor([[12.0 + j, 0.0, w / 2], [0.0, 11.0, h / 2], [0.0, 0.0, 1.0]])
+        depth = 2.0 + torch.rand(h, w, generator=g) * 2
+        alpha = (torch.rand(h, w, generator=g) > 0.3).float()
+        cams.append((torch.linalg.inv(c2w), K, depth, alpha))
+    cameras = _cameras(*cams)
+    pts = 4 * (torch.rand(30, 500, 3, generator=g) - 0.5)
+    # points exactly on a surface bound and on the left image border of camera 0
+    viewmat, K, depth, _ = cams[0]
+    z = depth[3, :5] * 1.05
+    on_border = torch.stack([torch.zeros(5), torch.full((5,), 3.5), torch.ones(5)], dim=1)  # (u, v, 1)
+    cam_pts = torch.linalg.solve(K, on_border.T).T * z[:, None]
+    world = (torch.linalg.inv(viewmat) @ torch.cat([cam_pts, torch.ones(5, 1)], dim=1).T).T[:, :3]
+    pts = torch.cat([pts.reshape(-1, 3), world])
+    for margin in (0.0, 0.05):
+        compiled = count_seeing_cameras(pts, cameras, margin=margin)
+        reference = count_seeing_cameras_reference(pts, cameras, margin=margin)
+        assert torch.equal(compiled, reference)
+        assert 0 < compiled.float().mean() < len(cams)  # some points seen, not all by every camera
+    assert count_seeing_cameras(pts.double(), cameras).dtype == torch.int32
+    far = torch.tensor([[float("inf"), 0.0, 0.0], [float("nan"), 0.0, 0.0], [0.0, 1e30, 0.0]])
+    assert count_seeing_cameras(far, cameras).tolist() == [0, 0, 0]  # no index outside a map
 
 
 def test_view_aware_search_prefers_unseen_samples_density_breaks_ties():

@@ -38,6 +38,58 @@ def test_value_and_gradient_match_pytorch_msssim(shape, size_average):
     torch.testing.assert_close(y1.grad, y2.grad, rtol=1e-4, atol=1e-5 * y2.grad.abs().max().item())
 
 
+def _whole_map_ssim(x, y, win, C1, C2):
+    """Per-plane SSIM and its gradient filtered as whole maps, in the kernel's summation order (each
+    sum starts at 0 and adds the window taps in order; the transposed filters add the rows in order):
+    the fused row-by-row kernel must give exactly these bits."""
+    K = win.numel()
+
+    def filt_h(m):  # down the rows
+        out = torch.zeros(m.shape[0] - K + 1, m.shape[1])
+        for k in range(K):
+            out = out + win[k] * m[k : k + out.shape[0]]
+        return out
+
+    def filt_w(m):  # along the rows
+        out = torch.zeros(m.shape[0], m.shape[1] - K + 1)
+        for k in range(K):
+            out = out + win[k] * m[:, k : k + out.shape[1]]
+        return out
+
+    planes = []
+    for X, Y in zip(x.reshape(-1, *x.shape[2:]), y.reshape(-1, *y.shape[2:]), strict=True):
+        mx, my, exx, eyy, exy = (filt_w(filt_h(m)) for m in (X, Y, X * X, Y * Y, X * Y))
+        sxx, syy, sxy = exx - mx * mx, eyy - my * my, exy - mx * my
+        S = ((2 * mx * my + C1) * (2 * sxy + C2)) / ((mx * mx + my * my + C1) * (sxx + syy + C2))
+        planes.append(S.double().flatten().cumsum(0)[-1] / S.numel())  # double sum in window order
+    return torch.stack(planes).float()
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 75, 50), (1, 2, 33, 12)])
+def test_fused_kernel_gives_the_bits_of_whole_map_filters_for_any_thread_count(shape):
+    """Rows are filtered in blocks of 32 per task (heights not a multiple of it, and a block of one
+    output row): the values are those of filtering whole maps, with 1 or 2 threads."""
+    from pytorch_msssim.ssim import _fspecial_gauss_1d
+
+    ext = cpp_backend.load_extension()
+    x, y = _images(shape)
+    win = _fspecial_gauss_1d(11, 1.5).reshape(-1).contiguous()
+    expected = _whole_map_ssim(x, y, win, 1e-4, 9e-4).reshape(shape[:2])
+    threads = torch.get_num_threads()
+    results = []
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            planes, dmaps = ext.ssim_fwd(x, y, win, 1e-4, 9e-4, True)
+            v_planes = torch.linspace(0.5, 1.5, shape[0] * shape[1]).reshape(shape[:2])
+            v_y = ext.ssim_bwd(x, y, win, dmaps, v_planes)
+            results.append((planes, v_y))
+    finally:
+        torch.set_num_threads(threads)
+    torch.testing.assert_close(results[0][0], expected, rtol=0, atol=0)
+    assert torch.equal(results[0][0], results[1][0]) and torch.equal(results[0][1], results[1][1])
+
+
 def test_identical_images_give_one_and_no_gradient_step():
     x, _ = _images((1, 3, 30, 30))
     y = x.clone().requires_grad_(True)

@@ -76,6 +76,18 @@ def test_bench_train_times_a_generated_preset_at_a_resolution_clean_or_attacked(
     assert result.scene == "generated facing 80x60 (seed 0), clean run" and len(result.step_ms) == 2
 
 
+def test_bench_train_object_preset_gets_triangulated_seed_points_and_the_attack(capsys):
+    """The 360-degree object-centred preset is a Blender scene without points: the bench triangulates
+    them as bench attack does, and the attacked run's injection (at step 0 with --warmup 0) is timed."""
+    from stealth_ns.bench.train_step import run_train_benchmark
+
+    result = run_train_benchmark(preset="object", warmup=0, steps=2, threads=1)
+    out = capsys.readouterr().out
+    assert result.scene == "generated object 128x128 (seed 0)" and len(result.step_ms) == 2
+    assert "triangulating the seed points" in out and "injected" in out
+    assert result.step_ms[0] > result.step_ms[1]  # the injection is in the first step
+
+
 def test_bench_train_cli_on_a_small_scene(tiny_orbit_scene, tmp_path):
     path = tmp_path / "train.json"
     proc = run_cli(
@@ -100,7 +112,7 @@ def test_bench_train_bad_options(tmp_path):
     proc = run_cli("stealth-ns", "bench", "train", "--data", str(tmp_path / "missing"), check=False)
     assert proc.returncode != 0 and "does not exist" in proc.stderr + proc.stdout
     for args, needle in (
-        (["--preset", "object"], "--preset 'object': choose one of orbit"),
+        (["--preset", "nope"], "--preset 'nope': choose one of orbit, forward, facing, object"),
         (["--resolution", "10x"], "resolution"),
         (["--data", str(tmp_path), "--preset", "facing"], "not with --data"),
     ):

@@ -58,7 +58,32 @@ class CameraDepths:
 def count_seeing_cameras(
     points: Tensor, cameras: CameraDepths, margin: float = 0.05, near: float = 0.01
 ) -> Tensor:
-    """Number of cameras that see each point.
+    """Number of cameras that see each point (:func:`count_seeing_cameras_reference`'s contract),
+    by the compiled kernel on the CPU (``raster/csrc/visibility_cpu.cpp``: each point visits every
+    camera once instead of a dozen full-size torch operations per camera), else by the reference."""
+    from stealth_ns.raster.cpp_backend import load_extension
+
+    ext = load_extension() if points.device.type == "cpu" else None
+    if ext is None:
+        return count_seeing_cameras_reference(points, cameras, margin, near)
+    shape = points.shape[:-1]
+    counts = ext.count_seeing(
+        points.reshape(-1, 3).float().contiguous(),
+        cameras.viewmats.float().contiguous(),
+        cameras.Ks.float().contiguous(),
+        [d.float().contiguous() for d in cameras.depths],
+        [a.float().contiguous() for a in cameras.alphas],
+        float(margin),
+        float(near),
+        SURFACE_ALPHA,
+    )
+    return counts.reshape(shape)
+
+
+def count_seeing_cameras_reference(
+    points: Tensor, cameras: CameraDepths, margin: float = 0.05, near: float = 0.01
+) -> Tensor:
+    """Number of cameras that see each point: the readable reference.
 
     A camera sees a point when its camera-space ``z > near``, it projects inside the image, and
     it is not behind the rendered surface there: ``z <= depth * (1 + margin)`` wherever the
@@ -77,15 +102,16 @@ def count_seeing_cameras(
     shape = points.shape[:-1]
     pts = points.reshape(-1, 3).float()
     counts = torch.zeros(pts.shape[0], dtype=torch.int32, device=pts.device)
-    homog = torch.cat([pts, torch.ones_like(pts[:, :1])], dim=-1)
+    x, y, zw = pts.unbind(-1)
     for j in range(len(cameras)):
-        cam = homog @ cameras.viewmats[j].to(pts).T  # [P, 4]
-        z = cam[:, 2]
+        V = cameras.viewmats[j].to(pts)
+        # V @ [x, y, z, 1] summed left to right (a matrix product may sum in another order)
+        xc, yc, z = (V[i, 0] * x + V[i, 1] * y + V[i, 2] * zw + V[i, 3] for i in range(3))
         front = z > near
         zs = torch.where(front, z, torch.ones_like(z))
         K = cameras.Ks[j].to(pts)
-        u = K[0, 0] * cam[:, 0] / zs + K[0, 2]
-        v = K[1, 1] * cam[:, 1] / zs + K[1, 2]
+        u = K[0, 0] * xc / zs + K[0, 2]
+        v = K[1, 1] * yc / zs + K[1, 2]
         depth, alpha = cameras.depths[j].to(pts.device), cameras.alphas[j].to(pts.device)
         h, w = depth.shape
         inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)

@@ -226,6 +226,19 @@ def _bench_config(data: Path, output: Path, method: str, seed: int, iterations: 
     return config
 
 
+def _with_seed_points(data: Path, output: Path) -> Path:
+    """``data``, or for a folder without seed points (a Blender scene such as the ``object`` preset) its
+    copy with points triangulated from its images and poses, as ``bench attack`` trains it."""
+    from stealth_ns.datasets.source import inspect_folder
+
+    if not inspect_folder("--data", str(data)).triangulated:
+        return data
+    from stealth_ns.seed_points import make_seed_points
+
+    print(f"triangulating the seed points of {data} (it has none)", flush=True)
+    return Path(make_seed_points(data, output=output, overwrite=True, seed=0).dataset)
+
+
 def _close_event_writers() -> None:
     """Close nerfstudio's TensorBoard writers (module-global, never closed by the trainer) and forget
     them. Their background thread flushes the event file after training returns: removing the run
@@ -273,6 +286,7 @@ def run_train_benchmark(
             scene = f"generated {preset} {made.width}x{made.height} (seed {seed})"
         else:
             scene = str(data)
+        data = _with_seed_points(data, Path(tmp) / "seeded")
         scene += "" if attack else ", clean run"
         from stealth_ns.poisoning.setup import setup_trainer
 

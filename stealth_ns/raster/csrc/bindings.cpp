@@ -6,6 +6,7 @@
 #include "project_cpu.h"
 #include "rasterize_cpu.h"
 #include "ssim_cpu.h"
+#include "visibility_cpu.h"
 #include <ATen/ops/empty.h>
 
 #include <torch/csrc/utils/pybind.h>
@@ -13,7 +14,7 @@
 namespace py = pybind11;
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, densification statistics";
+    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, densification statistics, camera visibility";
     m.def("rasterize_fwd", &stealth_ns::rasterize_fwd,
           py::arg("means2d"), py::arg("conics"), py::arg("colors"),
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
@@ -46,4 +47,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("densify_stats", &stealth_ns::densify_stats,
           py::arg("grad2d"), py::arg("count"), py::arg("max_radii"),
           py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
+    m.def("count_seeing", &stealth_ns::count_seeing, py::arg("points"), py::arg("viewmats"), py::arg("Ks"),
+          py::arg("depths"), py::arg("alphas"), py::arg("margin"), py::arg("near_plane"), py::arg("surface_alpha"));
 }
