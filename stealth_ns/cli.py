@@ -102,7 +102,8 @@ class BenchTrain:
     """Time training steps of the default orbit run (or --data), split into phases."""
 
     data: Path | None = None
-    """A nerfstudio-data or COLMAP dataset (default: the generated orbit scene, seed --seed)."""
+    """A nerfstudio-data, COLMAP or Blender dataset (default: the generated orbit scene, seed --seed); one
+    without seed points gets them triangulated first, as bench attack does."""
     method: Literal["stealth-splat-lite", "stealth-splat"] = "stealth-splat-lite"
     """The method, trained with its default attack as ns-train runs it."""
     warmup: int = 1000
@@ -116,7 +117,8 @@ class BenchTrain:
     json: Path | None = None
     """Also write the figures to this JSON file (keys median_step_ms, phases_ms, ...)."""
     preset: str = "orbit"
-    """Without --data: the generated scene (stealth-ns make-scene --preset)."""
+    """Without --data: the generated scene (stealth-ns make-scene --preset; object: the 360-degree
+    object-centred Blender scene, its seed points triangulated)."""
     resolution: str | None = None
     """Without --data: the generated scene's WIDTHxHEIGHT (default: the preset's), e.g. 1008x756."""
     attack: bool = True

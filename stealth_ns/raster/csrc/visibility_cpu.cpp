@@ -3,9 +3,9 @@
 // The readable reference with the same contract is stealth_ns/attack/visibility.py's
 // `count_seeing_cameras_reference` (a dozen full-size torch operations per camera). The injection's
 // ray search asks it for every sample of every illusion ray against every innocent camera (1.5M
-// samples x 100 cameras on the generated object scene), so the torch version made that search take
-// seconds, and ~10x longer when another process shares the cores (each operation is an OpenMP
-// region). Here each point visits every camera once, in blocks of points that stay in cache.
+// samples x 100 cameras on the generated object scene: 2.25 s in torch; 52M samples x 20 cameras on
+// the 1-MP facing scene: a 49.7 s injection). Here each point visits every camera once, and each
+// camera's depth and opacity are one map of depth bounds (one read per lookup).
 //
 // Float expressions are those of the reference, in its order, rounded to float32 (compiled with
 // -ffp-contract=off): the camera-space point is V[i,0] x + V[i,1] y + V[i,2] z + V[i,3] summed left
@@ -16,9 +16,11 @@
 #include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
+#include <ATen/ops/empty.h>
 #include <ATen/ops/zeros.h>
 
 #include <algorithm>
+#include <limits>
 
 
 namespace stealth_ns {
@@ -28,12 +30,12 @@ namespace {
 struct CameraView {
     float V[12];  // the first three rows of the world-to-camera matrix
     float fx, cx, fy, cy;
-    int64_t w, h;
+    int32_t w;  // int32 pixel indices: GCC vectorises the lookup as a gather (1-MP facing: 4.0 -> 1.4 s)
     float fw, fh, fw1, fh1;  // w, h, w - 1 and h - 1 as floats (the reference's bounds and clamp)
-    const float *depth, *alpha;
+    const float *bound;  // per pixel: the depth bound (depth * (1 + margin)) where it shows a surface, else +inf
 };
 
-constexpr int64_t BLOCK = 256;  // points per task block: their counts stay in registers/L1
+constexpr int64_t BLOCK = 256;  // points per task block (4096 and 65536 measured the same at 1 MP)
 
 }  // namespace
 
@@ -48,7 +50,9 @@ at::Tensor count_seeing(const at::Tensor &points, const at::Tensor &viewmats, co
     TORCH_CHECK(viewmats.dim() == 3 && viewmats.size(1) == 4 && viewmats.size(2) == 4, "viewmats must be [J, 4, 4]");
     TORCH_CHECK(Ks.dim() == 3 && Ks.size(0) == J && Ks.size(1) == 3 && Ks.size(2) == 3, "Ks must be [J, 3, 3]");
     TORCH_CHECK((int64_t)depths.size() == J && (int64_t)alphas.size() == J, "need one depth and alpha map per camera");
+    const float fsurf = (float)surface_alpha, grow = (float)(1.0 + margin);
     std::vector<CameraView> cams(J);
+    std::vector<at::Tensor> bounds(J);
     const float *vm = viewmats.data_ptr<float>(), *k = Ks.data_ptr<float>();
     for (int64_t j = 0; j < J; ++j) {
         check_cpu_f32(depths[j], "depths");
@@ -58,11 +62,22 @@ at::Tensor count_seeing(const at::Tensor &points, const at::Tensor &viewmats, co
         CameraView &c = cams[j];
         for (int i = 0; i < 12; ++i) c.V[i] = vm[16 * j + i];
         c.fx = k[9 * j + 0], c.cx = k[9 * j + 2], c.fy = k[9 * j + 4], c.cy = k[9 * j + 5];
-        c.h = depths[j].size(0), c.w = depths[j].size(1);
-        c.fw = (float)c.w, c.fh = (float)c.h, c.fw1 = (float)(c.w - 1), c.fh1 = (float)(c.h - 1);
-        c.depth = depths[j].data_ptr<float>(), c.alpha = alphas[j].data_ptr<float>();
+        const int64_t h = depths[j].size(0), w = depths[j].size(1), hw = h * w;
+        TORCH_CHECK(hw < (int64_t)1 << 31, "depth maps must have fewer than 2^31 pixels");
+        c.w = (int32_t)w;
+        c.fw = (float)w, c.fh = (float)h, c.fw1 = (float)(w - 1), c.fh1 = (float)(h - 1);
+        // one map read per lookup instead of two (the maps of a 1-MP capture do not stay in cache):
+        // z <= +inf for every finite z, and a NaN bound fails the test as the reference's comparison does
+        bounds[j] = at::empty({h, w}, depths[j].options());
+        const float *depth = depths[j].data_ptr<float>(), *alpha = alphas[j].data_ptr<float>();
+        float *bound = bounds[j].data_ptr<float>();
+        at::parallel_for(0, hw, 16384, [&](int64_t i0, int64_t i1) {
+            for (int64_t i = i0; i < i1; ++i)
+                bound[i] = alpha[i] >= fsurf ? depth[i] * grow : std::numeric_limits<float>::infinity();
+        });
+        c.bound = bound;
     }
-    const float fnear = (float)near_plane, fsurf = (float)surface_alpha, grow = (float)(1.0 + margin);
+    const float fnear = (float)near_plane;
     at::Tensor counts = at::zeros({P}, points.options().dtype(at::kInt));
     const float *pts = points.data_ptr<float>();
     int32_t *out = counts.data_ptr<int32_t>();
@@ -82,10 +97,10 @@ at::Tensor count_seeing(const at::Tensor &points, const at::Tensor &viewmats, co
                     const float u = c.fx * xc / zs + c.cx, v = c.fy * yc / zs + c.cy;
                     const bool inside = front & (u >= 0.0f) & (u < c.fw) & (v >= 0.0f) & (v < c.fh);
                     // clamped to [0, w - 1] (NaN to 0: never an index outside the map)
-                    const int64_t col = (int64_t)(u >= 0.0f ? (u <= c.fw1 ? u : c.fw1) : 0.0f);
-                    const int64_t row = (int64_t)(v >= 0.0f ? (v <= c.fh1 ? v : c.fh1) : 0.0f);
-                    const int64_t at = row * c.w + col;
-                    const bool unoccluded = !(c.alpha[at] >= fsurf) | (z <= c.depth[at] * grow);
+                    const int32_t col = (int32_t)(u >= 0.0f ? (u <= c.fw1 ? u : c.fw1) : 0.0f);
+                    const int32_t row = (int32_t)(v >= 0.0f ? (v <= c.fh1 ? v : c.fh1) : 0.0f);
+                    const int32_t at = row * c.w + col;
+                    const bool unoccluded = z <= c.bound[at];
                     out[p] += (int32_t)(inside & unoccluded);
                 }
             }
