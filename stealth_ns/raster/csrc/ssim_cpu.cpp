@@ -69,29 +69,24 @@ void window_row(const float *__restrict__ rx, const float *__restrict__ ry, int6
 }
 
 // The SSIM map S of one row of window positions from its five filtered maps m [5, Wo] into s [Wo], and
-// when g is given the derivatives dS/dmu_y, dS/dE[YY], dS/dE[XY] (divided by n) into g, g + HWo, g + 2 HWo.
+// with G the derivatives dS/dmu_y, dS/dE[YY], dS/dE[XY] (divided by n) into g, g + HWo, g + 2 HWo.
+template <bool G>
 void ssim_row(const float *__restrict__ m, int64_t Wo, float c1, float c2, float inv_n, float *__restrict__ s,
               float *__restrict__ g, int64_t HWo) {
+    float *__restrict__ g1 = G ? g + HWo : nullptr, *__restrict__ g2 = G ? g + 2 * HWo : nullptr;
     for (int64_t i = 0; i < Wo; ++i) {
         const float mx = m[i], my = m[Wo + i];
         const float sxx = m[2 * Wo + i] - mx * mx, syy = m[3 * Wo + i] - my * my;
         const float sxy = m[4 * Wo + i] - mx * my;
         const float A = 2.0f * mx * my + c1, B = mx * mx + my * my + c1;
         const float Cn = 2.0f * sxy + c2, D = sxx + syy + c2;
-        s[i] = (A * Cn) / (B * D);
-    }
-    if (!g) return;
-    float *__restrict__ g1 = g + HWo, *__restrict__ g2 = g + 2 * HWo;
-    for (int64_t i = 0; i < Wo; ++i) {
-        const float mx = m[i], my = m[Wo + i];
-        const float sxx = m[2 * Wo + i] - mx * mx, syy = m[3 * Wo + i] - my * my;
-        const float sxy = m[4 * Wo + i] - mx * my;
-        const float A = 2.0f * mx * my + c1, B = mx * mx + my * my + c1;
-        const float Cn = 2.0f * sxy + c2, D = sxx + syy + c2;
-        const float S = s[i];
-        g[i] = (2.0f * mx * (Cn - A) / (B * D) - 2.0f * my * S / B + 2.0f * my * S / D) * inv_n;
-        g1[i] = (-S / D) * inv_n;
-        g2[i] = (2.0f * A / (B * D)) * inv_n;
+        const float S = (A * Cn) / (B * D);
+        s[i] = S;
+        if (G) {
+            g[i] = (2.0f * mx * (Cn - A) / (B * D) - 2.0f * my * S / B + 2.0f * my * S / D) * inv_n;
+            g1[i] = (-S / D) * inv_n;
+            g2[i] = (2.0f * A / (B * D)) * inv_n;
+        }
     }
 }
 
@@ -138,7 +133,10 @@ std::vector<at::Tensor> ssim_fwd(const at::Tensor &X, const at::Tensor &Y, const
                 for (int64_t k = 0; k < K; ++k) window_row(x + (r + k) * W, yy + (r + k) * W, W, w[k], col.data());
                 for (int q = 0; q < 5; ++q) filter_row(col.data() + q * W, W, w, K, m.data() + q * d.Wo);
                 const int64_t o = r * d.Wo;
-                ssim_row(m.data(), d.Wo, c1, c2, inv_n, sp + p * HWo + o, dp ? dp + p * 3 * HWo + o : nullptr, HWo);
+                if (dp)
+                    ssim_row<true>(m.data(), d.Wo, c1, c2, inv_n, sp + p * HWo + o, dp + p * 3 * HWo + o, HWo);
+                else
+                    ssim_row<false>(m.data(), d.Wo, c1, c2, inv_n, sp + p * HWo + o, nullptr, HWo);
             }
         }
     });
