@@ -97,6 +97,7 @@ def test_bench_train_cli_on_a_small_scene(tiny_orbit_scene, tmp_path):
     assert "median step" in proc.stdout and "backward: rasterize" in proc.stdout
     result = json.loads(path.read_text())
     assert result["steps"] == 4 and len(result["step_ms"]) == 4 and result["threads"] == 1
+    assert f"{sum(result['step_ms']) / 1000:.1f} s in all" in proc.stdout  # a whole run's time (--warmup 0)
     assert set(result["phases_ms"]) == set(PHASES)
     assert result["median_step_ms"] > 0 and result["phases_ms"]["rasterize forward"] > 0
     assert result["phases_ms"]["backward: projection+SH"] > 0  # the compiled projection ran

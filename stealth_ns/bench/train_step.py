@@ -120,8 +120,8 @@ class TrainBenchResult:
         lines = [
             f"stealth-ns bench train: {self.method} on {self.scene}, backend {self.backend}, "
             f"{self.threads} thread(s); {self.steps} steps timed after {self.warmup}",
-            f"  median step {self.median_step_ms:.1f} ms (mean {self.mean_step_ms:.1f} ms); "
-            f"{self.gaussians} Gaussians, {self.pairs} tile pairs",
+            f"  median step {self.median_step_ms:.1f} ms (mean {self.mean_step_ms:.1f} ms, "
+            f"{sum(self.step_ms) / 1000:.1f} s in all); {self.gaussians} Gaussians, {self.pairs} tile pairs",
             f"  {'phase':<25}{'median ms':>11}{'mean ms':>10}{'share':>8}",
         ]
         total = sum(self.phases_mean_ms.values()) or 1.0
