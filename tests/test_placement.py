@@ -96,6 +96,9 @@ def test_count_seeing_cameras_compiled_equals_reference():
     assert count_seeing_cameras(pts.double(), cameras).dtype == torch.int32
     far = torch.tensor([[float("inf"), 0.0, 0.0], [float("nan"), 0.0, 0.0], [0.0, 1e30, 0.0]])
     assert count_seeing_cameras(far, cameras).tolist() == [0, 0, 0]  # no index outside a map
+    assert cameras.depth_bounds(0.05) is cameras.depth_bounds(0.05)  # made once per margin
+    with pytest.raises(ValueError, match="of one size"):
+        CameraDepths(cameras.viewmats[:1], cameras.Ks[:1], [depth], [depth[:-1]])
 
 
 def test_view_aware_search_prefers_unseen_samples_density_breaks_ties():

@@ -18,7 +18,7 @@ down +Z, +Y down; gsplat's), ``Ks`` ``[J, 3, 3]`` pixel intrinsics with pixel ce
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -42,6 +42,7 @@ class CameraDepths:
     Ks: Tensor
     depths: list[Tensor]
     alphas: list[Tensor]
+    _bounds: dict[float, list[Tensor]] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         j = self.viewmats.shape[0]
@@ -50,9 +51,23 @@ class CameraDepths:
                              f"{tuple(self.viewmats.shape)} and {tuple(self.Ks.shape)}")  # fmt: skip
         if len(self.depths) != j or len(self.alphas) != j:
             raise ValueError(f"need one depth and one opacity map per camera ({j})")
+        if any(d.dim() != 2 or d.shape != a.shape for d, a in zip(self.depths, self.alphas, strict=True)):
+            raise ValueError("each camera's depth and opacity maps must be [H, W], of one size")
 
     def __len__(self) -> int:
         return self.viewmats.shape[0]
+
+    def depth_bounds(self, margin: float) -> list[Tensor]:
+        """Per camera ``[H_j, W_j]`` float32: how deep a point may lie and still be seen there,
+        ``depth * (1 + margin)`` where the pixel shows a surface (opacity >= :data:`SURFACE_ALPHA`),
+        ``+inf`` where it shows none; made once per margin (the ray search asks once per chunk)."""
+        if margin not in self._bounds:
+            inf = torch.tensor(float("inf"))
+            self._bounds[margin] = [
+                torch.where(a.float() >= SURFACE_ALPHA, d.float() * (1.0 + margin), inf).contiguous()
+                for d, a in zip(self.depths, self.alphas, strict=True)
+            ]
+        return self._bounds[margin]
 
 
 def count_seeing_cameras(
@@ -71,11 +86,8 @@ def count_seeing_cameras(
         points.reshape(-1, 3).float().contiguous(),
         cameras.viewmats.float().contiguous(),
         cameras.Ks.float().contiguous(),
-        [d.float().contiguous() for d in cameras.depths],
-        [a.float().contiguous() for a in cameras.alphas],
-        float(margin),
+        cameras.depth_bounds(margin),
         float(near),
-        SURFACE_ALPHA,
     )
     return counts.reshape(shape)
 

@@ -228,15 +228,14 @@ def _bench_config(data: Path, output: Path, method: str, seed: int, iterations: 
 
 def _with_seed_points(data: Path, output: Path) -> Path:
     """``data``, or for a folder without seed points (a Blender scene such as the ``object`` preset) its
-    copy with points triangulated from its images and poses, as ``bench attack`` trains it."""
+    copy with points triangulated from its images and poses, made as ``bench attack`` makes it."""
+    from stealth_ns.datasets.seeded import ensure_seed_points
     from stealth_ns.datasets.source import inspect_folder
 
-    if not inspect_folder("--data", str(data)).triangulated:
+    source = inspect_folder(data.name, str(data))
+    if not source.triangulated:
         return data
-    from stealth_ns.seed_points import make_seed_points
-
-    print(f"triangulating the seed points of {data} (it has none)", flush=True)
-    return Path(make_seed_points(data, output=output, overwrite=True, seed=0).dataset)
+    return Path(ensure_seed_points(output, source)["dataset"])
 
 
 def _close_event_writers() -> None:

@@ -48,5 +48,5 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("grad2d"), py::arg("count"), py::arg("max_radii"),
           py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
     m.def("count_seeing", &stealth_ns::count_seeing, py::arg("points"), py::arg("viewmats"), py::arg("Ks"),
-          py::arg("depths"), py::arg("alphas"), py::arg("margin"), py::arg("near_plane"), py::arg("surface_alpha"));
+          py::arg("bounds"), py::arg("near_plane"));
 }

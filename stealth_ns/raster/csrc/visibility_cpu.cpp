@@ -4,13 +4,17 @@
 // `count_seeing_cameras_reference` (a dozen full-size torch operations per camera). The injection's
 // ray search asks it for every sample of every illusion ray against every innocent camera (1.5M
 // samples x 100 cameras on the generated object scene: 2.25 s in torch; 52M samples x 20 cameras on
-// the 1-MP facing scene: a 49.7 s injection). Here each point visits every camera once, and each
-// camera's depth and opacity are one map of depth bounds (one read per lookup).
+// the 1-MP facing scene: a 49.7 s injection). Here each point visits every camera once, and reads one
+// map of depth bounds per camera (made once per injection by CameraDepths.depth_bounds: depth *
+// (1 + margin) where the pixel shows a surface, +inf elsewhere; the maps of a 1-MP capture do not
+// stay in cache, so one read per lookup instead of a depth and an opacity read).
 //
 // Float expressions are those of the reference, in its order, rounded to float32 (compiled with
 // -ffp-contract=off): the camera-space point is V[i,0] x + V[i,1] y + V[i,2] z + V[i,3] summed left
 // to right, u = K00 * x_c / z + K02, the pixel the clamped u truncated, and the depth bound
-// surface * float(1 + margin); the counts are the reference's exactly (tests/test_placement.py).
+// surface * float(1 + margin) (made in torch, the same float32 product); the counts are the
+// reference's exactly (tests/test_placement.py). A point is unoccluded when z <= bound: true for
+// every finite z where the bound is +inf, false where it is NaN, as the reference's comparison.
 
 #include "visibility_cpu.h"
 #include "tensor_checks.h"
@@ -20,7 +24,6 @@
 #include <ATen/ops/zeros.h>
 
 #include <algorithm>
-#include <limits>
 
 
 namespace stealth_ns {
@@ -32,7 +35,7 @@ struct CameraView {
     float fx, cx, fy, cy;
     int32_t w;  // int32 pixel indices: GCC vectorises the lookup as a gather (1-MP facing: 4.0 -> 1.4 s)
     float fw, fh, fw1, fh1;  // w, h, w - 1 and h - 1 as floats (the reference's bounds and clamp)
-    const float *bound;  // per pixel: the depth bound (depth * (1 + margin)) where it shows a surface, else +inf
+    const float *bound;  // per pixel: the depth bound (CameraDepths.depth_bounds: one read per lookup)
 };
 
 constexpr int64_t BLOCK = 256;  // points per task block (4096 and 65536 measured the same at 1 MP)
@@ -40,8 +43,7 @@ constexpr int64_t BLOCK = 256;  // points per task block (4096 and 65536 measure
 }  // namespace
 
 at::Tensor count_seeing(const at::Tensor &points, const at::Tensor &viewmats, const at::Tensor &Ks,
-                        const std::vector<at::Tensor> &depths, const std::vector<at::Tensor> &alphas,
-                        double margin, double near_plane, double surface_alpha) {
+                        const std::vector<at::Tensor> &bounds, double near_plane) {
     check_cpu_f32(points, "points");
     check_cpu_f32(viewmats, "viewmats");
     check_cpu_f32(Ks, "Ks");
@@ -49,33 +51,20 @@ at::Tensor count_seeing(const at::Tensor &points, const at::Tensor &viewmats, co
     const int64_t P = points.size(0), J = viewmats.size(0);
     TORCH_CHECK(viewmats.dim() == 3 && viewmats.size(1) == 4 && viewmats.size(2) == 4, "viewmats must be [J, 4, 4]");
     TORCH_CHECK(Ks.dim() == 3 && Ks.size(0) == J && Ks.size(1) == 3 && Ks.size(2) == 3, "Ks must be [J, 3, 3]");
-    TORCH_CHECK((int64_t)depths.size() == J && (int64_t)alphas.size() == J, "need one depth and alpha map per camera");
-    const float fsurf = (float)surface_alpha, grow = (float)(1.0 + margin);
+    TORCH_CHECK((int64_t)bounds.size() == J, "need one depth-bound map per camera");
     std::vector<CameraView> cams(J);
-    std::vector<at::Tensor> bounds(J);
     const float *vm = viewmats.data_ptr<float>(), *k = Ks.data_ptr<float>();
     for (int64_t j = 0; j < J; ++j) {
-        check_cpu_f32(depths[j], "depths");
-        check_cpu_f32(alphas[j], "alphas");
-        TORCH_CHECK(depths[j].dim() == 2 && alphas[j].sizes() == depths[j].sizes(),
-                    "each camera's depth and alpha maps must be [H, W]");
+        check_cpu_f32(bounds[j], "bounds");
+        TORCH_CHECK(bounds[j].dim() == 2, "each camera's depth-bound map must be [H, W]");
         CameraView &c = cams[j];
         for (int i = 0; i < 12; ++i) c.V[i] = vm[16 * j + i];
         c.fx = k[9 * j + 0], c.cx = k[9 * j + 2], c.fy = k[9 * j + 4], c.cy = k[9 * j + 5];
-        const int64_t h = depths[j].size(0), w = depths[j].size(1), hw = h * w;
-        TORCH_CHECK(hw < (int64_t)1 << 31, "depth maps must have fewer than 2^31 pixels");
+        const int64_t h = bounds[j].size(0), w = bounds[j].size(1);
+        TORCH_CHECK(h * w < (int64_t)1 << 31, "depth-bound maps must have fewer than 2^31 pixels");
         c.w = (int32_t)w;
         c.fw = (float)w, c.fh = (float)h, c.fw1 = (float)(w - 1), c.fh1 = (float)(h - 1);
-        // one map read per lookup instead of two (the maps of a 1-MP capture do not stay in cache):
-        // z <= +inf for every finite z, and a NaN bound fails the test as the reference's comparison does
-        bounds[j] = at::empty({h, w}, depths[j].options());
-        const float *depth = depths[j].data_ptr<float>(), *alpha = alphas[j].data_ptr<float>();
-        float *bound = bounds[j].data_ptr<float>();
-        at::parallel_for(0, hw, 16384, [&](int64_t i0, int64_t i1) {
-            for (int64_t i = i0; i < i1; ++i)
-                bound[i] = alpha[i] >= fsurf ? depth[i] * grow : std::numeric_limits<float>::infinity();
-        });
-        c.bound = bound;
+        c.bound = bounds[j].data_ptr<float>();
     }
     const float fnear = (float)near_plane;
     at::Tensor counts = at::zeros({P}, points.options().dtype(at::kInt));
