@@ -59,6 +59,7 @@ from stealth_ns.gaussian_rows import append_rows, rebind_optimizers
 from stealth_ns.malloc_tuning import keep_freed_memory
 from stealth_ns.metrics import LazyLPIPS
 from stealth_ns.raster import rasterization, resolve_backend
+from stealth_ns.raster.composite import composite_on_background
 from stealth_ns.raster.projection import SHCoefficients, viewmat_from_c2w
 from stealth_ns.render_view import RenderFilter, render_camera
 from stealth_ns.ssim import SSIM
@@ -547,7 +548,7 @@ class StealthSplatModel(SplatfactoModel):
             )
 
         background = self._get_background_color()
-        rgb = torch.clamp(render[..., :3] + (1 - alpha) * background, 0.0, 1.0)
+        rgb = composite_on_background(render if render.shape[-1] == 3 else render[..., :3], alpha, background)
         if (
             self.config.use_bilateral_grid
             and self.training

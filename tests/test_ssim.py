@@ -118,3 +118,16 @@ def test_kernel_rejects_bad_inputs():
         ext.ssim_fwd(x[..., :10].contiguous(), y[..., :10].contiguous(), win, 1e-4, 9e-4, False)
     with pytest.raises(RuntimeError, match="same shape"):
         ext.ssim_fwd(x, y[:, :2].contiguous(), win, 1e-4, 9e-4, False)
+
+
+def test_gradient_of_a_permuted_hwc_image_comes_back_in_its_layout():
+    """The training loss permutes [H, W, 3] images to [1, 3, H, W]: the gradient keeps that memory
+    layout (a contiguous [H, W, 3] gradient downstream), with the same values as for a copy."""
+    x, y = _images((1, 3, 31, 45), seed=3)
+    ssim = SSIM(data_range=1.0, size_average=True, channel=3)
+    hwc = y[0].permute(1, 2, 0).contiguous().requires_grad_(True)
+    planes = y.clone().requires_grad_(True)
+    ssim(x, hwc.permute(2, 0, 1)[None]).backward()
+    ssim(x, planes).backward()
+    assert hwc.grad.is_contiguous()
+    assert torch.equal(hwc.grad, planes.grad[0].permute(1, 2, 0))

@@ -56,7 +56,7 @@ __all__ = [
 EXTENSION_NAME = "stealth_ns_raster_cpu"
 _CSRC = Path(__file__).resolve().parent / "csrc"
 # csrc/<name>_cpu.cpp + .h, bound in bindings.cpp
-_KERNELS = ("rasterize", "project", "ssim", "densify", "visibility")
+_KERNELS = ("rasterize", "project", "ssim", "composite", "densify", "visibility")
 _SOURCES = (*(_CSRC / f"{name}_cpu.cpp" for name in _KERNELS), _CSRC / "bindings.cpp")
 _HEADERS = (*(_CSRC / f"{name}_cpu.h" for name in _KERNELS), _CSRC / "tensor_checks.h")
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that

@@ -2,6 +2,7 @@
 // Only this file includes torch's pybind11 glue; the kernels include ATen alone, which keeps the
 // first build short (torch/extension.h alone takes ~20 s to parse per file on a 2-core machine).
 
+#include "composite_cpu.h"
 #include "densify_cpu.h"
 #include "project_cpu.h"
 #include "rasterize_cpu.h"
@@ -14,7 +15,7 @@
 namespace py = pybind11;
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, densification statistics, camera visibility";
+    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, background composite, densification statistics, camera visibility";
     m.def("rasterize_fwd", &stealth_ns::rasterize_fwd,
           py::arg("means2d"), py::arg("conics"), py::arg("colors"),
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
@@ -44,6 +45,9 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("C2"), py::arg("need_grad"));
     m.def("ssim_bwd", &stealth_ns::ssim_bwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("dmaps"),
           py::arg("v_planes"));
+    m.def("composite_fwd", &stealth_ns::composite_fwd, py::arg("render"), py::arg("alpha"), py::arg("background"));
+    m.def("composite_bwd", &stealth_ns::composite_bwd, py::arg("render"), py::arg("alpha"), py::arg("background"),
+          py::arg("v_rgb"));
     m.def("densify_stats", &stealth_ns::densify_stats,
           py::arg("grad2d"), py::arg("count"), py::arg("max_radii"),
           py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
