@@ -31,40 +31,112 @@ void check_image(const at::Tensor &t, const char *name) {
     TORCH_CHECK(t.dim() == 4, name, " must be [B, C, H, W]");
 }
 
+// The filters below keep each output's sum in registers, 16 outputs at a time, over the window's taps
+// in order (the sum starts at 0): the same additions in the same order as accumulating whole rows in
+// memory tap by tap, which took 5 loads and stores per tap and output.
+typedef float vf16 __attribute__((vector_size(64)));
+typedef float vf16_u __attribute__((vector_size(64), aligned(4), __may_alias__));
+constexpr int64_t VL = 16;
+inline vf16 ld(const float *p) { return *reinterpret_cast<const vf16_u *>(p); }
+inline void st(float *p, vf16 v) { *reinterpret_cast<vf16_u *>(p) = v; }
+
+// Outputs [x, x + 16 U) of a K-tap filter, out[x] = sum_k w[k] in[x + s k] (s = +1 or -1), k in order from
+// 0. U independent sums: one alone waits on the latency of each addition.
+template <int U, int S>
+inline void filter_chunk(const float *__restrict__ in, const float *__restrict__ w, int64_t K,
+                         float *__restrict__ out, int64_t x) {
+    vf16 acc[U] = {};
+    for (int64_t k = 0; k < K; ++k) {
+        const float wk = w[k];
+        for (int u = 0; u < U; ++u) acc[u] += wk * ld(in + x + VL * u + S * k);
+    }
+    for (int u = 0; u < U; ++u) st(out + x + VL * u, acc[u]);
+}
+
+template <int S>
+void filter_line(const float *__restrict__ in, int64_t n, const float *__restrict__ w, int64_t K,
+                 float *__restrict__ out) {
+    int64_t x = 0;
+    for (; x + 4 * VL <= n; x += 4 * VL) filter_chunk<4, S>(in, w, K, out, x);
+    for (; x + VL <= n; x += VL) filter_chunk<1, S>(in, w, K, out, x);
+    for (; x < n; ++x) {
+        float acc = 0.0f;
+        for (int64_t k = 0; k < K; ++k) acc += w[k] * in[x + S * k];
+        out[x] = acc;
+    }
+}
+
 // out[x] = sum_k w[k] in[x + k]: one row of W -> W - K + 1 (the sum starts at 0, k in order)
 void filter_row(const float *in, int64_t W, const float *w, int64_t K, float *out) {
-    const int64_t Wo = W - K + 1;
-    for (int64_t x = 0; x < Wo; ++x) out[x] = 0.0f;
-    for (int64_t k = 0; k < K; ++k) {
-        const float wk = w[k];
-        for (int64_t x = 0; x < Wo; ++x) out[x] += wk * in[x + k];
-    }
+    filter_line<1>(in, W - K + 1, w, K, out);
 }
 
-// Transpose of filter_row: one row of Wo -> Wo + K - 1
+// Transpose of filter_row, from a row of Wo values with K - 1 zeros on each side (in[-(K-1)] ..
+// in[Wo + K - 2]): out[j] = sum_k w[k] in[j - k], j < Wo + K - 1.  The zeros stand for the terms the
+// transposed filter does not have at the borders: each adds +0, which leaves the sum as it was.
 void filter_row_t(const float *in, int64_t Wo, const float *w, int64_t K, float *out) {
-    const int64_t W = Wo + K - 1;
-    for (int64_t x = 0; x < W; ++x) out[x] = 0.0f;
-    for (int64_t k = 0; k < K; ++k) {
-        const float wk = w[k];
-        for (int64_t x = 0; x < Wo; ++x) out[x + k] += wk * in[x];
+    filter_line<-1>(in, Wo + K - 1, w, K, out);
+}
+
+// The five maps of one output row filtered down the window's rows (image rows r .. r + K - 1 at x, y):
+// col[q * W + i] = sum_k w_k (mu_x, mu_y, E[XX], E[YY], E[XY]) terms, k in order.
+void window_col(const float *__restrict__ x, const float *__restrict__ y, int64_t W, const float *__restrict__ w,
+                int64_t K, float *__restrict__ col) {
+    int64_t i = 0;
+    for (; i + VL <= W; i += VL) {
+        vf16 c0 = {}, c1 = {}, c2 = {}, c3 = {}, c4 = {};
+        for (int64_t k = 0; k < K; ++k) {
+            const vf16 a = ld(x + k * W + i), b = ld(y + k * W + i);
+            const float wk = w[k];
+            c0 += wk * a;
+            c1 += wk * b;
+            c2 += wk * (a * a);
+            c3 += wk * (b * b);
+            c4 += wk * (a * b);
+        }
+        st(col + i, c0);
+        st(col + W + i, c1);
+        st(col + 2 * W + i, c2);
+        st(col + 3 * W + i, c3);
+        st(col + 4 * W + i, c4);
+    }
+    for (; i < W; ++i) {
+        float c0 = 0.0f, c1 = 0.0f, c2 = 0.0f, c3 = 0.0f, c4 = 0.0f;
+        for (int64_t k = 0; k < K; ++k) {
+            const float a = x[k * W + i], b = y[k * W + i], wk = w[k];
+            c0 += wk * a;
+            c1 += wk * b;
+            c2 += wk * (a * a);
+            c3 += wk * (b * b);
+            c4 += wk * (a * b);
+        }
+        col[i] = c0;
+        col[W + i] = c1;
+        col[2 * W + i] = c2;
+        col[3 * W + i] = c3;
+        col[4 * W + i] = c4;
     }
 }
 
-// One row of the window down the image rows: col[q * W + i] += w_k * (mu_x, mu_y, E[XX], E[YY], E[XY])
-// terms of the image row (rx, ry). The arguments are __restrict__ so that GCC vectorises the loop (with
-// the pointers as locals it would need more run-time overlap checks than it makes, and stays scalar).
-void window_row(const float *__restrict__ rx, const float *__restrict__ ry, int64_t W, float wk,
-                float *__restrict__ col) {
-    float *__restrict__ c0 = col, *__restrict__ c1 = col + W, *__restrict__ c2 = col + 2 * W;
-    float *__restrict__ c3 = col + 3 * W, *__restrict__ c4 = col + 4 * W;
-    for (int64_t i = 0; i < W; ++i) {
-        const float a = rx[i], b = ry[i];
-        c0[i] += wk * a;
-        c1[i] += wk * b;
-        c2[i] += wk * (a * a);
-        c3[i] += wk * (b * b);
-        c4[i] += wk * (a * b);
+// Output row Yr, columns [i, i + 16 U), of the backward: the three maps taken back down the rows (rows
+// lo..hi of t0, t1, t2, in increasing order) and combined, dL/dY = b0 + 2 Y b1 + X b2.
+template <int U>
+inline void back_chunk(const float *__restrict__ t0, const float *__restrict__ t1, const float *__restrict__ t2,
+                       const float *__restrict__ w, int64_t Yr, int64_t lo, int64_t hi, int64_t r0, int64_t W,
+                       const float *__restrict__ xr, const float *__restrict__ yr, float *__restrict__ o, int64_t i) {
+    vf16 b0[U] = {}, b1[U] = {}, b2[U] = {};
+    for (int64_t r = lo; r <= hi; ++r) {
+        const float wk = w[Yr - r];
+        for (int u = 0; u < U; ++u) {
+            const int64_t off = (r - r0) * W + i + VL * u;
+            b0[u] += wk * ld(t0 + off);
+            b1[u] += wk * ld(t1 + off);
+            b2[u] += wk * ld(t2 + off);
+        }
+    }
+    for (int u = 0; u < U; ++u) {
+        const int64_t c = i + VL * u;
+        st(o + c, b0[u] + 2.0f * ld(yr + c) * b1[u] + ld(xr + c) * b2[u]);
     }
 }
 
@@ -129,8 +201,7 @@ std::vector<at::Tensor> ssim_fwd(const at::Tensor &X, const at::Tensor &Y, const
             const int64_t p = task / blocks, y0 = (task % blocks) * ROWS, y1 = std::min(d.Ho, y0 + ROWS);
             const float *x = xp + p * HW, *yy = yp + p * HW;
             for (int64_t r = y0; r < y1; ++r) {
-                for (int64_t i = 0; i < 5 * W; ++i) col[i] = 0.0f;
-                for (int64_t k = 0; k < K; ++k) window_row(x + (r + k) * W, yy + (r + k) * W, W, w[k], col.data());
+                window_col(x + r * W, yy + r * W, W, w, K, col.data());
                 for (int q = 0; q < 5; ++q) filter_row(col.data() + q * W, W, w, K, m.data() + q * d.Wo);
                 const int64_t o = r * d.Wo;
                 if (dp)
@@ -166,7 +237,8 @@ at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &
     at::parallel_for(0, d.planes * blocks, 1, [&](int64_t begin, int64_t end) {
         // G^T (v dS/dmu_y), G^T (v dS/dE[YY]), G^T (v dS/dE[XY]): each map's rows taken back along W
         // (rows r0..r1-1, those the task's output rows gather), then down the rows, row by row
-        std::vector<float> g((size_t)d.Wo), t((size_t)3 * (ROWS + K - 1) * W), back((size_t)3 * W);
+        std::vector<float> gpad((size_t)d.Wo + 2 * (K - 1), 0.0f), t((size_t)3 * (ROWS + K - 1) * W);
+        float *g = gpad.data() + K - 1;  // zeros on both sides stay zeros
         for (int64_t task = begin; task < end; ++task) {
             const int64_t p = task / blocks, Y0 = (task % blocks) * ROWS, Y1 = std::min(d.H, Y0 + ROWS);
             const int64_t r0 = std::max<int64_t>(0, Y0 - K + 1), r1 = std::min(d.Ho, Y1);
@@ -175,25 +247,29 @@ at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &
                 for (int64_t r = r0; r < r1; ++r) {
                     const float *src = dp + (p * 3 + q) * HWo + r * d.Wo;
                     for (int64_t i = 0; i < d.Wo; ++i) g[i] = vp[p] * src[i];
-                    filter_row_t(g.data(), d.Wo, w, K, t.data() + (q * n + (r - r0)) * W);
+                    filter_row_t(g, d.Wo, w, K, t.data() + (q * n + (r - r0)) * W);
                 }
             const float *x = xp + p * HW, *yy = yp + p * HW;
             for (int64_t Yr = Y0; Yr < Y1; ++Yr) {
                 // rows r with r <= Yr < r + K, in increasing r (the order the transposed filter adds them)
                 const int64_t lo = std::max<int64_t>(0, Yr - K + 1), hi = std::min(d.Ho - 1, Yr);
-                for (int q = 0; q < 3; ++q) {
-                    float *b = back.data() + q * W;
-                    for (int64_t i = 0; i < W; ++i) b[i] = 0.0f;
-                    for (int64_t r = lo; r <= hi; ++r) {
-                        const float wk = w[Yr - r];
-                        const float *tr = t.data() + (q * n + (r - r0)) * W;
-                        for (int64_t i = 0; i < W; ++i) b[i] += wk * tr[i];
-                    }
-                }
-                const float *b0 = back.data(), *b1 = b0 + W, *b2 = b1 + W;
                 const float *xr = x + Yr * W, *yr = yy + Yr * W;
                 float *o = out + p * HW + Yr * W;
-                for (int64_t i = 0; i < W; ++i) o[i] = b0[i] + 2.0f * yr[i] * b1[i] + xr[i] * b2[i];
+                const float *t0 = t.data(), *t1 = t0 + n * W, *t2 = t1 + n * W;
+                int64_t i = 0;
+                for (; i + 2 * VL <= W; i += 2 * VL) back_chunk<2>(t0, t1, t2, w, Yr, lo, hi, r0, W, xr, yr, o, i);
+                for (; i + VL <= W; i += VL) back_chunk<1>(t0, t1, t2, w, Yr, lo, hi, r0, W, xr, yr, o, i);
+                for (; i < W; ++i) {
+                    float b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
+                    for (int64_t r = lo; r <= hi; ++r) {
+                        const float wk = w[Yr - r];
+                        const int64_t off = (r - r0) * W + i;
+                        b0 += wk * t0[off];
+                        b1 += wk * t1[off];
+                        b2 += wk * t2[off];
+                    }
+                    o[i] = b0 + 2.0f * yr[i] * b1 + xr[i] * b2;
+                }
             }
         }
     });
