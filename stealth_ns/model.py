@@ -122,6 +122,7 @@ class StealthSplatModel(SplatfactoModel):
     """Gaussian splatting with CUDA (gsplat) and CPU rasterizers; see the module docstring."""
 
     config: StealthSplatModelConfig
+    _last_gt: tuple | None = None  # get_gt_img's last (image, its version, downscale, result)
 
     def populate_modules(self) -> None:
         # Splatfacto's initialisation, minus the unconditional .cuda() and the eager LPIPS.
@@ -262,6 +263,14 @@ class StealthSplatModel(SplatfactoModel):
             f"stealth-splat: every camera is outside the scene box, random initialisation drawn in it "
             f"({lo.tolist()} to {hi.tolist()})"
         )
+
+    def get_gt_img(self, image: Tensor) -> Tensor:
+        """splatfacto's, kept for the last image: a step asks twice (training metrics, loss), and each uint8
+        -> float conversion is two passes over the image. Same tensor, unchanged (version), same downscale."""
+        key = (image, image._version, self._get_downscale_factor())
+        if self._last_gt is None or self._last_gt[0] is not image or self._last_gt[1:3] != key[1:]:
+            self._last_gt = (*key, super().get_gt_img(image))
+        return self._last_gt[3]
 
     def _get_background_color(self) -> Tensor:
         if self.config.match_dataparser_background and bool(torch.isfinite(self.data_background).all()):

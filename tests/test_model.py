@@ -64,3 +64,20 @@ def test_lpips_unavailable_offline_is_reported_not_raised(tmp_path, monkeypatch)
     assert "lpips" not in metrics and "psnr" in metrics and "ssim" in metrics
     assert "AlexNet weights not found" in model.lpips_metric.reason
     assert images["img"].shape == (32, 96, 3)
+
+
+def test_ground_truth_conversion_is_reused_only_for_the_same_unchanged_image():
+    model, _ = build_model()
+    model.train()
+    model.step = 10**6  # full resolution
+    image = (_target(32, 48) * 255).to(torch.uint8)
+    first = model.get_gt_img(image)
+    assert model.get_gt_img(image) is first  # the loss after the training metrics: converted once
+    assert torch.equal(first, image.float() / 255.0)
+    other = image.clone()
+    assert model.get_gt_img(other) is not first
+    other[0, 0, 0] = 7  # changed in place: converted again
+    assert model.get_gt_img(other)[0, 0, 0] == torch.tensor(7.0) / 255.0
+    model.step = 0
+    model.config.num_downscales, model.config.resolution_schedule = 1, 10  # another downscale
+    assert model.get_gt_img(other).shape[:2] == (16, 24)

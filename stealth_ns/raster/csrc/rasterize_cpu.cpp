@@ -127,44 +127,6 @@ inline vf vfloor(vf x) {
 }
 #endif
 
-// Lane masks of the per-pixel tests.  With AVX-512VL they live in mask registers (__mmask8), and
-// the tests, selects and "any lane" checks are single instructions; GCC's vector booleans instead
-// went through general registers lane by lane.  Elsewhere they are vector booleans (-1 / 0 lanes).
-// Comparisons are ordered and quiet, as the vector operators: false when a lane is NaN.
-#if defined(__AVX512VL__) && defined(__AVX512DQ__)
-typedef __mmask8 lmask;
-inline lmask m_le(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_LE_OQ); }
-inline lmask m_ge(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_GE_OQ); }
-inline lmask m_ilt(vi a, vi b) { return _mm256_cmplt_epi32_mask((__m256i)a, (__m256i)b); }
-inline lmask m_ile(vi a, vi b) { return _mm256_cmple_epi32_mask((__m256i)a, (__m256i)b); }
-inline lmask m_ige(vi a, vi b) { return _mm256_cmpge_epi32_mask((__m256i)a, (__m256i)b); }
-inline lmask m_nonzero(vi a) { return _mm256_test_epi32_mask((__m256i)a, (__m256i)a); }
-inline vi m_lanes(lmask m) { return (vi)_mm256_movm_epi32(m); }  // -1 / 0 per lane
-inline bool m_any(lmask m) { return m != 0; }
-inline int m_count(lmask m) { return __builtin_popcount(m); }
-inline uint32_t m_bits(lmask m) { return m; }  // bit l: lane l
-inline vf m_sel(lmask m, vf a, vf b) { return (vf)_mm256_mask_blend_ps(m, (__m256)b, (__m256)a); }
-inline vi m_seli(lmask m, vi a, vi b) { return (vi)_mm256_mask_blend_epi32(m, (__m256i)b, (__m256i)a); }
-#else
-typedef vi lmask;
-inline lmask m_le(vf a, vf b) { return a <= b; }
-inline lmask m_ge(vf a, vf b) { return a >= b; }
-inline lmask m_ilt(vi a, vi b) { return a < b; }
-inline lmask m_ile(vi a, vi b) { return a <= b; }
-inline lmask m_ige(vi a, vi b) { return a >= b; }
-inline lmask m_nonzero(vi a) { return a != 0; }
-inline vi m_lanes(lmask m) { return m; }
-inline bool m_any(lmask m) { return vany(m); }
-inline int m_count(lmask m) { return vcount(m); }
-inline uint32_t m_bits(lmask m) {
-    uint32_t bits = 0;
-    for (int l = 0; l < VW; ++l) bits |= (uint32_t)(m[l] != 0) << l;
-    return bits;
-}
-inline vf m_sel(lmask m, vf a, vf b) { return m ? a : b; }
-inline vi m_seli(lmask m, vi a, vi b) { return m ? a : b; }
-#endif
-
 // 16-lane vectors: two blocks of 8 pixels side by side, lanes 0-7 the first block and 8-15 the
 // second.  A Gaussian's blocks are evaluated two at a time: the work of a block is one long chain
 // of dependent operations (the exp polynomial, the division of the backward), and one block at a
@@ -179,8 +141,27 @@ inline vf vlo(vf16 v) { return __builtin_shufflevector(v, v, 0, 1, 2, 3, 4, 5, 6
 inline vf vhi(vf16 v) { return __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15); }
 inline vi vlo(vi16 v) { return __builtin_shufflevector(v, v, 0, 1, 2, 3, 4, 5, 6, 7); }
 inline vi vhi(vi16 v) { return __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15); }
-#if defined(__AVX512F__) && defined(__AVX512DQ__) && defined(__AVX512VL__)
+
+// Lane masks of the per-pixel tests, 8 lanes (lmask) or 16 (lmask16).  With AVX-512VL they live in
+// mask registers (__mmask8, __mmask16), and the tests, selects and "any lane" checks are single
+// instructions; GCC's vector booleans instead went through general registers lane by lane.  Elsewhere
+// they are vector booleans (-1 / 0 lanes).  Comparisons are ordered and quiet, as the vector operators:
+// false when a lane is NaN.
+#if defined(__AVX512VL__) && defined(__AVX512DQ__)
+typedef __mmask8 lmask;
 typedef __mmask16 lmask16;
+inline lmask m_le(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_LE_OQ); }
+inline lmask m_ge(vf a, vf b) { return _mm256_cmp_ps_mask((__m256)a, (__m256)b, _CMP_GE_OQ); }
+inline lmask m_ilt(vi a, vi b) { return _mm256_cmplt_epi32_mask((__m256i)a, (__m256i)b); }
+inline lmask m_ile(vi a, vi b) { return _mm256_cmple_epi32_mask((__m256i)a, (__m256i)b); }
+inline lmask m_ige(vi a, vi b) { return _mm256_cmpge_epi32_mask((__m256i)a, (__m256i)b); }
+inline lmask m_nonzero(vi a) { return _mm256_test_epi32_mask((__m256i)a, (__m256i)a); }
+inline vi m_lanes(lmask m) { return (vi)_mm256_movm_epi32(m); }  // -1 / 0 per lane
+inline bool m_any(lmask m) { return m != 0; }
+inline int m_count(lmask m) { return __builtin_popcount(m); }
+inline uint32_t m_bits(lmask m) { return m; }  // bit l: lane l
+inline vf m_sel(lmask m, vf a, vf b) { return (vf)_mm256_mask_blend_ps(m, (__m256)b, (__m256)a); }
+inline vi m_seli(lmask m, vi a, vi b) { return (vi)_mm256_mask_blend_epi32(m, (__m256i)b, (__m256i)a); }
 inline lmask16 m_le(vf16 a, vf16 b) { return _mm512_cmp_ps_mask((__m512)a, (__m512)b, _CMP_LE_OQ); }
 inline lmask16 m_ge(vf16 a, vf16 b) { return _mm512_cmp_ps_mask((__m512)a, (__m512)b, _CMP_GE_OQ); }
 inline lmask16 m_ilt(vi16 a, vi16 b) { return _mm512_cmplt_epi32_mask((__m512i)a, (__m512i)b); }
@@ -188,25 +169,33 @@ inline lmask16 m_ile(vi16 a, vi16 b) { return _mm512_cmple_epi32_mask((__m512i)a
 inline lmask16 m_ige(vi16 a, vi16 b) { return _mm512_cmpge_epi32_mask((__m512i)a, (__m512i)b); }
 inline lmask16 m_nonzero(vi16 a) { return _mm512_test_epi32_mask((__m512i)a, (__m512i)a); }
 inline vi16 m_lanes16(lmask16 m) { return (vi16)_mm512_movm_epi32(m); }
+inline bool m_any16(lmask16 m) { return m != 0; }
+inline int m_count16(lmask16 m) { return __builtin_popcount(m); }
 inline vf16 m_sel(lmask16 m, vf16 a, vf16 b) { return (vf16)_mm512_mask_blend_ps(m, (__m512)b, (__m512)a); }
 inline vi16 m_seli(lmask16 m, vi16 a, vi16 b) { return (vi16)_mm512_mask_blend_epi32(m, (__m512i)b, (__m512i)a); }
-inline int m_count16(lmask16 m) { return __builtin_popcount(m); }
-inline bool m_any16(lmask16 m) { return m != 0; }
 #else
+typedef vi lmask;
 typedef vi16 lmask16;
-inline lmask16 m_le(vf16 a, vf16 b) { return a <= b; }
-inline lmask16 m_ge(vf16 a, vf16 b) { return a >= b; }
-inline lmask16 m_ilt(vi16 a, vi16 b) { return a < b; }
-inline lmask16 m_ile(vi16 a, vi16 b) { return a <= b; }
-inline lmask16 m_ige(vi16 a, vi16 b) { return a >= b; }
-inline lmask16 m_nonzero(vi16 a) { return a != 0; }
+// one definition for both widths
+template <class V> inline auto m_le(V a, V b) { return a <= b; }
+template <class V> inline auto m_ge(V a, V b) { return a >= b; }
+template <class V> inline auto m_ilt(V a, V b) { return a < b; }
+template <class V> inline auto m_ile(V a, V b) { return a <= b; }
+template <class V> inline auto m_ige(V a, V b) { return a >= b; }
+template <class V> inline auto m_nonzero(V a) { return a != 0; }
+template <class M, class V> inline V m_sel(M m, V a, V b) { return m ? a : b; }
+template <class M, class V> inline V m_seli(M m, V a, V b) { return m ? a : b; }
+inline vi m_lanes(lmask m) { return m; }
+inline bool m_any(lmask m) { return vany(m); }
+inline int m_count(lmask m) { return vcount(m); }
+inline uint32_t m_bits(lmask m) {
+    uint32_t bits = 0;
+    for (int l = 0; l < VW; ++l) bits |= (uint32_t)(m[l] != 0) << l;
+    return bits;
+}
 inline vi16 m_lanes16(lmask16 m) { return m; }
-inline vf16 m_sel(lmask16 m, vf16 a, vf16 b) { return m ? a : b; }
-inline vi16 m_seli(lmask16 m, vi16 a, vi16 b) { return m ? a : b; }
-inline lmask m_lo(lmask16 m) { return vlo(m); }
-inline lmask m_hi(lmask16 m) { return vhi(m); }
-inline int m_count16(lmask16 m) { return m_count(m_lo(m)) + m_count(m_hi(m)); }
-inline bool m_any16(lmask16 m) { return m_any(m_lo(m)) || m_any(m_hi(m)); }
+inline bool m_any16(lmask16 m) { return m_any(vlo(m)) || m_any(vhi(m)); }
+inline int m_count16(lmask16 m) { return m_count(vlo(m)) + m_count(vhi(m)); }
 #endif
 
 // exp(x), lane-wise: Cody-Waite range reduction + Cephes' degree-6 polynomial
