@@ -465,7 +465,8 @@ class BlockVisitor {
   private:
     // Tiles of 9-16 pixels (gsplat's default is 16): a row has two blocks, columns [0, 8) and [8, 16).
     // The blocks in use are the set bits of one word, bit 2 r + h for row r, half h, computed for
-    // all rows at once: listing them one row at a time took a quarter of the 1-MP forward.
+    // all rows at once instead of row by row (the listing, spans included, is about a quarter of the
+    // 1-MP forward; this form of it gained ~5 % of the forward).
     template <class Body>
     void visit_two_per_row(const GPrep &g, int y_base, int y0, int y1, const int32_t *lo, const int32_t *hi, Body &body) {
         const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
