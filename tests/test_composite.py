@@ -73,3 +73,6 @@ def test_bad_shapes_are_refused():
         ext.composite_fwd(render, alpha, torch.rand(4))
     with pytest.raises(RuntimeError, match="alpha must be"):
         ext.composite_fwd(render, torch.rand(1, 4, 5, 1), background)
+    wide = torch.rand(1, 4, 6, 3)
+    with pytest.raises(RuntimeError, match="alpha must be"):  # as many pixels, in another shape
+        ext.composite_fwd(wide, torch.rand(1, 6, 4, 1), background)

@@ -33,7 +33,9 @@ void check_args(const at::Tensor &render, const at::Tensor &alpha, const at::Ten
     check_cpu_f32(background, "background");
     TORCH_CHECK(render.dim() >= 1 && background.dim() == 1 && background.size(0) == render.size(-1),
                 "background must be [D] for a render [..., D]");
-    TORCH_CHECK(alpha.dim() == render.dim() && alpha.size(-1) == 1 && alpha.numel() * render.size(-1) == render.numel(),
+    const int64_t lead = render.dim() - 1;  // the pixel dimensions, shared by render and alpha
+    TORCH_CHECK(alpha.dim() == render.dim() && alpha.size(-1) == 1 &&
+                    alpha.sizes().slice(0, lead) == render.sizes().slice(0, lead),
                 "alpha must be [..., 1] for a render [..., D]");
 }
 

@@ -88,7 +88,13 @@ inline vf vld(const float *p) { return *reinterpret_cast<const vf_u *>(p); }
 inline void vst(float *p, vf v) { *reinterpret_cast<vf_u *>(p) = v; }
 inline vi vild(const int32_t *p) { return *reinterpret_cast<const vi_u *>(p); }
 inline void vist(int32_t *p, vi v) { *reinterpret_cast<vi_u *>(p) = v; }
-inline vf vset(float a) { return vf{a, a, a, a, a, a, a, a}; }
+// a in every lane of an 8- or 16-lane vector
+template <class F> inline F bcast(float a) {
+    F r;
+    for (unsigned l = 0; l < sizeof(F) / sizeof(float); ++l) r[l] = a;
+    return r;
+}
+inline vf vset(float a) { return bcast<vf>(a); }
 inline vi viset(int32_t a) { return vi{a, a, a, a, a, a, a, a}; }
 inline bool vany(vi m) {
     const vl t = (vl)m;
@@ -203,13 +209,6 @@ inline int m_count16(lmask16 m) { return m_count(vlo(m)) + m_count(vhi(m)); }
 // -87.  Inlined and vectorised (glibc's expf is a call per pixel); used by both
 // forward and backward so that they take identical decisions.  gsplat's CUDA
 // kernels use the approximate __expf as well.
-// a in every lane of an 8- or 16-lane vector
-template <class F> inline F bcast(float a) {
-    F r;
-    for (unsigned l = 0; l < sizeof(F) / sizeof(float); ++l) r[l] = a;
-    return r;
-}
-
 template <class F> inline F vexp(F x) {
     using I = decltype(x < x);
     const I tiny = x < bcast<F>(-87.0f);
