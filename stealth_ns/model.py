@@ -58,6 +58,7 @@ from stealth_ns.gaussian_init import initial_colours, object_box
 from stealth_ns.gaussian_rows import append_rows, rebind_optimizers
 from stealth_ns.malloc_tuning import keep_freed_memory
 from stealth_ns.metrics import LazyLPIPS
+from stealth_ns.model_losses import LossesAndMetrics
 from stealth_ns.raster import rasterization, resolve_backend
 from stealth_ns.raster.composite import composite_on_background
 from stealth_ns.raster.projection import SHCoefficients, viewmat_from_c2w
@@ -118,7 +119,7 @@ def _tag_parameter(values: Tensor) -> torch.nn.Parameter:
     return torch.nn.Parameter(values.float(), requires_grad=False)
 
 
-class StealthSplatModel(SplatfactoModel):
+class StealthSplatModel(LossesAndMetrics, SplatfactoModel):
     """Gaussian splatting with CUDA (gsplat) and CPU rasterizers; see the module docstring."""
 
     config: StealthSplatModelConfig
@@ -577,20 +578,6 @@ class StealthSplatModel(SplatfactoModel):
             "accumulation": alpha.squeeze(0),
             "background": background,
         }
-
-    # ------------------------------------------------------------------ metrics
-    def get_image_metrics_and_images(
-        self, outputs: dict[str, Tensor], batch: dict[str, Tensor]
-    ) -> tuple[dict[str, float], dict[str, Tensor]]:
-        gt_rgb = self.composite_with_background(self.get_gt_img(batch["image"]), outputs["background"])
-        pred = outputs["rgb"]
-        gt_b = torch.moveaxis(gt_rgb, -1, 0)[None]
-        pred_b = torch.moveaxis(pred, -1, 0)[None]
-        metrics = {"psnr": float(self.psnr(gt_b, pred_b).item()), "ssim": float(self.ssim(gt_b, pred_b))}
-        lpips = self.lpips_metric(gt_b, pred_b)
-        if lpips is not None:
-            metrics["lpips"] = lpips
-        return metrics, {"img": torch.cat([gt_rgb, pred], dim=1)}
 
 
 def _in_viewer_render_thread() -> bool:

@@ -39,10 +39,48 @@ class _SSIMPlanesCPU(torch.autograd.Function):
         from stealth_ns.raster.cpp_backend import load_extension
 
         X, Y, win, dmaps = ctx.saved_tensors
-        v_Y = load_extension().ssim_bwd(X, Y, win, dmaps, v_planes.contiguous())
-        if ctx.channels_last:
-            v_Y = v_Y.contiguous(memory_format=torch.channels_last)
-        return None, v_Y, None, None, None
+        v_Y = load_extension().ssim_bwd(X, Y, win, dmaps, v_planes.contiguous(), 0.0, ctx.channels_last)
+        return None, v_Y.permute(0, 3, 1, 2) if ctx.channels_last else v_Y, None, None, None
+
+
+class _L1SSIMLossCPU(torch.autograd.Function):
+    """splatfacto's main loss ``(1 - lam) |gt - pred|.mean() + lam (1 - SSIM(gt, pred))`` of ``[H, W, C]``
+    images, its gradient written by the SSIM backward kernel in one pass."""
+
+    @staticmethod
+    def forward(ctx, pred: Tensor, gt: Tensor, win: Tensor, C1: float, C2: float, lam: float) -> Tensor:
+        from stealth_ns.raster.cpp_backend import load_extension
+
+        X, Y = gt.permute(2, 0, 1)[None].contiguous(), pred.permute(2, 0, 1)[None].contiguous()
+        planes, dmaps = load_extension().ssim_fwd(X, Y, win, C1, C2, True)
+        ctx.save_for_backward(X, Y, win, dmaps)
+        ctx.lam, ctx.n, ctx.n_planes = lam, pred.numel(), planes.numel()
+        return (1 - lam) * torch.abs(gt - pred).mean() + lam * (1 - planes.mean())
+
+    @staticmethod
+    def backward(ctx, v_loss: Tensor):
+        from stealth_ns.raster.cpp_backend import load_extension
+
+        X, Y, win, dmaps = ctx.saved_tensors
+        # Each term's upstream gradient rounded as autograd rounds it through the expression above: the
+        # product with the weight, then the mean's division (SSIM's after the negation of 1 - S).
+        v_l1 = (v_loss * (1 - ctx.lam)) / ctx.n
+        v_planes = (-(v_loss * ctx.lam)).expand(1, ctx.n_planes) / ctx.n_planes
+        v_pred = load_extension().ssim_bwd(X, Y, win, dmaps, v_planes.contiguous(), float(v_l1), True)
+        return v_pred[0], None, None, None, None, None
+
+
+def l1_ssim_loss(pred: Tensor, gt: Tensor, ssim: SSIM, lam: float) -> Tensor | None:
+    """splatfacto's main loss of ``[H, W, C]`` images in one compiled pass each way: the value and the
+    gradient with respect to ``pred`` are bitwise autograd's of
+    ``(1 - lam) * torch.abs(gt - pred).mean() + lam * (1 - ssim(gt_planes, pred_planes))``, which at 1 MP
+    chains ~8 full-image passes after the SSIM backward (``sgn``, products, the mean's division, a
+    negation, a layout copy, the sum of the two gradients). None where the compiled SSIM does not apply."""
+    if gt.dim() != 3 or pred.dim() != 3 or not ssim.size_average:
+        return None
+    if not ssim._compiled_path(gt.permute(2, 0, 1)[None], pred.permute(2, 0, 1)[None]):
+        return None
+    return _L1SSIMLossCPU.apply(pred, gt, ssim.window(), *ssim.constants(), lam)
 
 
 class SSIM(ReferenceSSIM):
@@ -51,11 +89,16 @@ class SSIM(ReferenceSSIM):
     def forward(self, X: Tensor, Y: Tensor) -> Tensor:
         if not self._compiled_path(X, Y):
             return super().forward(X, Y)
-        C1 = (self.K[0] * self.data_range) ** 2
-        C2 = (self.K[1] * self.data_range) ** 2
-        win = self.win[0].reshape(-1).to(torch.float32).contiguous()
-        planes = _SSIMPlanesCPU.apply(X, Y, win, C1, C2)
+        planes = _SSIMPlanesCPU.apply(X, Y, self.window(), *self.constants())
         return planes.mean() if self.size_average else planes.mean(1)
+
+    def constants(self) -> tuple[float, float]:
+        """SSIM's stabilising constants ``C1 = (K1 L)^2`` and ``C2 = (K2 L)^2``, ``L`` the data range."""
+        return (self.K[0] * self.data_range) ** 2, (self.K[1] * self.data_range) ** 2
+
+    def window(self) -> Tensor:
+        """The 1-D Gaussian window ``[K]`` (float32) the compiled kernels take."""
+        return self.win[0].reshape(-1).to(torch.float32).contiguous()
 
     def _compiled_path(self, X: Tensor, Y: Tensor) -> bool:
         """Whether the compiled kernel computes exactly what pytorch_msssim would here."""

@@ -49,8 +49,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "model",
         (
-            "model", "render_view", "export", "model_cloud", "defences.signals", "defences.posthoc",
-            "defences.pruned_run",
+            "model", "model_losses", "render_view", "export", "model_cloud", "defences.signals",
+            "defences.posthoc", "defences.pruned_run",
         ),
     ),
     ("training parts", ("datamanager", "viewer")),

@@ -81,3 +81,25 @@ def test_ground_truth_conversion_is_reused_only_for_the_same_unchanged_image():
     model.step = 0
     model.config.num_downscales, model.config.resolution_schedule = 1, 10  # another downscale
     assert model.get_gt_img(other).shape[:2] == (16, 24)
+
+
+def test_training_loss_is_splatfactos_with_the_main_term_fused():
+    """The model's loss: splatfacto's keys and values, and the same parameter gradients, bit for bit."""
+    from nerfstudio.models.splatfacto import SplatfactoModel
+
+    model, optimizers = build_model()
+    model.train()
+    model.step_cb(optimizers, 10**6)  # full resolution
+    batch = {"image": (_target(32, 48) * 255).to(torch.uint8)}
+    outputs = model.get_outputs(camera())  # one render (training draws a random background per render)
+    assert "L1SSIM" in type(model.get_loss_dict(outputs, batch)["main_loss"].grad_fn).__name__  # fused
+    grads, dicts = [], []
+    for loss_dict_of in (model.get_loss_dict, lambda o, b: SplatfactoModel.get_loss_dict(model, o, b)):
+        optimizers.zero_grad_all()
+        loss_dict = loss_dict_of(outputs, batch)
+        sum(loss_dict.values()).backward(retain_graph=True)
+        dicts.append({k: v.detach() for k, v in loss_dict.items()})
+        grads.append({k: p.grad.clone() for k, p in model.gauss_params.items() if p.grad is not None})
+    assert dicts[0].keys() == dicts[1].keys() and all(torch.equal(dicts[0][k], dicts[1][k]) for k in dicts[0])
+    assert grads[0].keys() == grads[1].keys() and "means" in grads[0]
+    assert all(torch.equal(grads[0][k], grads[1][k]) for k in grads[0])

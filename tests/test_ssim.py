@@ -5,7 +5,7 @@ import torch
 from pytorch_msssim import SSIM as ReferenceSSIM
 
 from stealth_ns.raster import cpp_backend
-from stealth_ns.ssim import SSIM
+from stealth_ns.ssim import SSIM, l1_ssim_loss
 
 pytestmark = pytest.mark.skipif(
     cpp_backend.load_extension() is None, reason="compiled CPU module unavailable"
@@ -131,3 +131,43 @@ def test_gradient_of_a_permuted_hwc_image_comes_back_in_its_layout():
     ssim(x, planes).backward()
     assert hwc.grad.is_contiguous()
     assert torch.equal(hwc.grad, planes.grad[0].permute(1, 2, 0))
+
+
+def _splatfacto_main_loss(pred, gt, ssim, lam):
+    """splatfacto's get_loss_dict main loss, op for op."""
+    l1 = torch.abs(gt - pred).mean()
+    return (1 - lam) * l1 + lam * (1 - ssim(gt.permute(2, 0, 1)[None], pred.permute(2, 0, 1)[None]))
+
+
+@pytest.mark.parametrize(
+    ("H", "W", "lam", "upstream"), [(37, 53, 0.2, 1.0), (96, 128, 0.2, 0.37), (11, 19, 0.9, 2.0)]
+)
+def test_fused_l1_ssim_loss_gives_the_bits_of_autograd(H, W, lam, upstream):
+    """The fused loss: the same loss value, and the same gradient, through the composite before it, as
+    autograd of splatfacto's expression; equal pixels (sgn 0) included."""
+    x, y = _images((1, 3, H, W), seed=H)
+    gt, render = x[0].permute(1, 2, 0).contiguous(), y[0].permute(1, 2, 0).contiguous()
+    render[:2] = gt[:2]
+    alpha = torch.rand(H, W, 1, generator=torch.Generator().manual_seed(1))
+    bg = torch.tensor([0.1, 0.6, 0.3])
+    ssim = SSIM(data_range=1.0, size_average=True, channel=3)
+    results = []
+    for fused in (True, False):
+        r, a = render.clone().requires_grad_(True), alpha.clone().requires_grad_(True)
+        pred = torch.clamp(r + (1 - a) * bg, 0.0, 1.0)
+        loss = l1_ssim_loss(pred, gt, ssim, lam) if fused else _splatfacto_main_loss(pred, gt, ssim, lam)
+        (loss * upstream).backward()
+        results.append((loss.detach(), r.grad, a.grad))
+    for ours, theirs in zip(*results, strict=True):
+        assert torch.equal(ours, theirs)
+    assert results[0][1].abs().max() > 0
+
+
+def test_fused_l1_ssim_loss_only_where_the_kernel_applies():
+    ssim = SSIM(data_range=1.0, size_average=True, channel=3)
+    gt, pred = torch.rand(20, 30, 3), torch.rand(20, 30, 3)
+    assert l1_ssim_loss(pred, gt, ssim, 0.2) is not None
+    assert l1_ssim_loss(pred, gt.requires_grad_(True), ssim, 0.2) is None  # the target needs no gradient
+    assert l1_ssim_loss(pred[:8], gt[:8].detach(), ssim, 0.2) is None  # smaller than the window
+    assert l1_ssim_loss(pred.double(), gt.detach().double(), ssim, 0.2) is None
+    assert l1_ssim_loss(pred, gt.detach(), SSIM(data_range=1.0, size_average=False, channel=3), 0.2) is None

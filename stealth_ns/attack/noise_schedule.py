@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING, Literal, TypeVar, get_args
 
 import numpy as np
 
+from stealth_ns.attack.normal_draw import noisy_uint8, normal_deviates
+
 if TYPE_CHECKING:
     import torch
 
@@ -88,9 +90,9 @@ def noise_seed(seed: int, view_index: int, step: int) -> int:
 def noisy_image(image: ImageT, sigma_255: float, seed: int, view_index: int, step: int) -> ImageT:
     """``clip(I + eta)``, ``eta ~ N(0, sigma^2)`` i.i.d. per pixel and channel, out of place.
 
-    The noise is drawn on the CPU from a ``torch.Generator`` seeded with
-    :func:`noise_seed` ``(seed, view_index, step)``, so it is reproducible for a given triple on any
-    device, and independent across views and steps.
+    The noise is stream :func:`noise_seed` ``(seed, view_index, step)`` of
+    :mod:`stealth_ns.attack.normal_draw` over the flattened image, drawn on the CPU, so it is
+    reproducible for a given triple on any device, and independent across views and steps.
 
     Args:
         image: ``[H, W, C]`` (any shape works) torch tensor or numpy array, either uint8 in 0..255 or float
@@ -117,12 +119,10 @@ def noisy_image(image: ImageT, sigma_255: float, seed: int, view_index: int, ste
         raise ValueError(f"image must be uint8 or floating point, got {img.dtype}")
     if sigma == 0:
         out = img.clone()
+    elif img.dtype == torch.uint8:
+        out = noisy_uint8(img, sigma, gen_seed)
     else:
-        gen = torch.Generator(device="cpu").manual_seed(gen_seed)
-        noise = torch.randn(tuple(img.shape), generator=gen, dtype=torch.float32).to(img.device)
-        if img.dtype == torch.uint8:
-            out = (img.float() + sigma * noise).round_().clamp_(0, 255).to(torch.uint8)
-        else:
-            work = torch.promote_types(img.dtype, torch.float32)
-            out = (img.to(work) + (sigma / 255.0) * noise.to(work)).clamp_(0.0, 1.0).to(img.dtype)
+        noise = normal_deviates(tuple(img.shape), gen_seed).to(img.device)
+        work = torch.promote_types(img.dtype, torch.float32)
+        out = (img.to(work) + (sigma / 255.0) * noise.to(work)).clamp_(0.0, 1.0).to(img.dtype)
     return out.numpy() if is_numpy else out  # type: ignore[return-value]

@@ -1,7 +1,7 @@
 """Compiled CPU backend of 3D Gaussian Splatting: projection + SH, tile intersection, rasterize-to-pixels.
 
-The C++ sources (``csrc/rasterize_cpu.cpp``, ``csrc/project_cpu.cpp``, ``csrc/ssim_cpu.cpp``,
-``csrc/densify_cpu.cpp`` and their Python bindings ``csrc/bindings.cpp``) are compiled on first use
+The C++ sources (``csrc/<kernel>_cpu.cpp`` for each name in ``_KERNELS`` and their Python bindings
+``csrc/bindings.cpp``) are compiled on first use
 with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP; about 20 s on 2 cores) into a cache
 directory:
 
@@ -17,8 +17,10 @@ returns ``None`` and :func:`compile_error` says why.
 The kernels mirror gsplat 1.4.0's CUDA ``rasterize_to_pixels`` forward/backward (see the header of
 the C++ file for the exact semantics), its ``isect_tiles`` + ``isect_offset_encode``, and its
 projection and SH (forward and backward; ``projection.py`` is their torch reference); the same
-module holds the training loss's SSIM (``stealth_ns/ssim.py``; pytorch_msssim is its reference) and the
-densification statistics (``stealth_ns/densification.py``; its torch code is their reference).
+module holds the training loss's SSIM (``stealth_ns/ssim.py``; pytorch_msssim is its reference), the
+densification statistics (``stealth_ns/densification.py``; its torch code is their reference), the
+background composite (``composite.py``), camera visibility counts and the attack's view noise
+(``stealth_ns/attack/normal_draw.py``; its numpy code is their reference).
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ __all__ = [
 EXTENSION_NAME = "stealth_ns_raster_cpu"
 _CSRC = Path(__file__).resolve().parent / "csrc"
 # csrc/<name>_cpu.cpp + .h, bound in bindings.cpp
-_KERNELS = ("rasterize", "project", "ssim", "composite", "densify", "visibility")
+_KERNELS = ("rasterize", "project", "ssim", "composite", "densify", "visibility", "noise")
 _SOURCES = (*(_CSRC / f"{name}_cpu.cpp" for name in _KERNELS), _CSRC / "bindings.cpp")
 _HEADERS = (*(_CSRC / f"{name}_cpu.h" for name in _KERNELS), _CSRC / "tensor_checks.h")
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that

@@ -4,6 +4,7 @@
 
 #include "composite_cpu.h"
 #include "densify_cpu.h"
+#include "noise_cpu.h"
 #include "project_cpu.h"
 #include "rasterize_cpu.h"
 #include "ssim_cpu.h"
@@ -15,7 +16,7 @@
 namespace py = pybind11;
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, background composite, densification statistics, camera visibility";
+    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, background composite, densification statistics, camera visibility, view noise";
     m.def("rasterize_fwd", &stealth_ns::rasterize_fwd,
           py::arg("means2d"), py::arg("conics"), py::arg("colors"),
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
@@ -44,7 +45,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     m.def("ssim_fwd", &stealth_ns::ssim_fwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("C1"),
           py::arg("C2"), py::arg("need_grad"));
     m.def("ssim_bwd", &stealth_ns::ssim_bwd, py::arg("X"), py::arg("Y"), py::arg("win"), py::arg("dmaps"),
-          py::arg("v_planes"));
+          py::arg("v_planes"), py::arg("l1_coef") = 0.0, py::arg("channels_last") = false);
     m.def("composite_fwd", &stealth_ns::composite_fwd, py::arg("render"), py::arg("alpha"), py::arg("background"));
     m.def("composite_bwd", &stealth_ns::composite_bwd, py::arg("render"), py::arg("alpha"), py::arg("background"),
           py::arg("v_rgb"));
@@ -53,4 +54,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
     m.def("count_seeing", &stealth_ns::count_seeing, py::arg("points"), py::arg("viewmats"), py::arg("Ks"),
           py::arg("bounds"), py::arg("near_plane"));
+    m.def("normal_draw", &stealth_ns::normal_draw, py::arg("count"), py::arg("key"));
+    m.def("noisy_u8", &stealth_ns::noisy_u8, py::arg("image"), py::arg("sigma"), py::arg("key"));
 }

@@ -761,7 +761,9 @@ void bwd_impl(
                 for (int k = 0; k < D; ++k) grgb[k] = vset(0.f);
                 vf g_ca = vset(0.f), g_cb = g_ca, g_cc = g_ca, g_x = g_ca, g_y = g_ca, g_o = g_ca;
                 bool hit = false;
-                visitor.visit(gp, x_base, tx1, y_base, ty1, [&](auto u, const Block *b) {
+                // always_inline: GCC kept this large body an out-of-line call per two blocks, so the
+                // nine per-Gaussian sums above went through memory (closure references) at every call
+                visitor.visit(gp, x_base, tx1, y_base, ty1, [&](auto u, const Block *b) __attribute__((always_inline)) {
                     using B = Blocks<decltype(u)::value>;
                     using F = typename B::F;
                     using I = typename B::I;

@@ -140,6 +140,20 @@ inline void back_chunk(const float *__restrict__ t0, const float *__restrict__ t
     }
 }
 
+// One row of dL/dY into out[i * step]: the SSIM term o plus, when the training loss fuses it here, its L1
+// term's gradient -(l1 sgn(x - y)) (l1 = its weight over the pixel count), rounded as torch's autograd of
+// w * |x - y|.mean() rounds it: sgn as torch.sgn (0 for 0 and NaN), the exact product with l1, the
+// negation, then the sum of the two gradients (which autograd adds in either order: the same bits).
+// l1 = 0 adds -0, which changes no value.  step = C gives the [B, H, W, C] layout.
+inline void write_row(const float *__restrict__ o, const float *__restrict__ x, const float *__restrict__ y,
+                      int64_t W, float l1, float *__restrict__ out, int64_t step) {
+    for (int64_t i = 0; i < W; ++i) {
+        const float d = x[i] - y[i];
+        const float sgn = (float)((0.0f < d) - (d < 0.0f));
+        out[i * step] = o[i] + -(l1 * sgn);
+    }
+}
+
 // The SSIM map S of one row of window positions from its five filtered maps m [5, Wo] into s [Wo], and
 // with G the derivatives dS/dmu_y, dS/dE[YY], dS/dE[XY] (divided by n) into g, g + HWo, g + 2 HWo.
 template <bool G>
@@ -165,7 +179,7 @@ void ssim_row(const float *__restrict__ m, int64_t Wo, float c1, float c2, float
 constexpr int64_t ROWS = 32;  // output rows per task: the backward recomputes K - 1 filtered rows per task
 
 struct Dims {
-    int64_t planes, H, W, K, Ho, Wo;
+    int64_t planes, H, W, K, Ho, Wo, B, C;
 };
 
 Dims check(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win) {
@@ -176,7 +190,7 @@ Dims check(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win) {
     TORCH_CHECK(win.dim() == 1, "win must be a vector");
     const int64_t K = win.size(0), H = X.size(2), W = X.size(3);
     TORCH_CHECK(H >= K && W >= K, "the image (", H, " x ", W, ") is smaller than the window (", K, ")");
-    return {X.size(0) * X.size(1), H, W, K, H - K + 1, W - K + 1};
+    return {X.size(0) * X.size(1), H, W, K, H - K + 1, W - K + 1, X.size(0), X.size(1)};
 }
 
 }  // namespace
@@ -222,14 +236,15 @@ std::vector<at::Tensor> ssim_fwd(const at::Tensor &X, const at::Tensor &Y, const
 }
 
 at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &win,
-                    const at::Tensor &dmaps, const at::Tensor &v_planes) {
+                    const at::Tensor &dmaps, const at::Tensor &v_planes, double l1_coef, bool channels_last) {
     const Dims d = check(X, Y, win);
     const int64_t HW = d.H * d.W, HWo = d.Ho * d.Wo, W = d.W, K = d.K;
     check_cpu_f32(dmaps, "dmaps");
     check_cpu_f32(v_planes, "v_planes");
     TORCH_CHECK(dmaps.numel() == d.planes * 3 * HWo, "dmaps must be [planes, 3, H', W']");
     TORCH_CHECK(v_planes.numel() == d.planes, "v_planes must be [B, C]");
-    auto v_Y = at::empty_like(Y);
+    at::Tensor v_Y = channels_last ? at::empty({d.B, d.H, d.W, d.C}, Y.options()) : at::empty_like(Y);
+    const float l1 = (float)l1_coef;
     const float *xp = X.data_ptr<float>(), *yp = Y.data_ptr<float>(), *w = win.data_ptr<float>();
     const float *dp = dmaps.data_ptr<float>(), *vp = v_planes.data_ptr<float>();
     float *out = v_Y.data_ptr<float>();
@@ -237,7 +252,7 @@ at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &
     at::parallel_for(0, d.planes * blocks, 1, [&](int64_t begin, int64_t end) {
         // G^T (v dS/dmu_y), G^T (v dS/dE[YY]), G^T (v dS/dE[XY]): each map's rows taken back along W
         // (rows r0..r1-1, those the task's output rows gather), then down the rows, row by row
-        std::vector<float> gpad((size_t)d.Wo + 2 * (K - 1), 0.0f), t((size_t)3 * (ROWS + K - 1) * W);
+        std::vector<float> gpad((size_t)d.Wo + 2 * (K - 1), 0.0f), t((size_t)3 * (ROWS + K - 1) * W), row(W);
         float *g = gpad.data() + K - 1;  // zeros on both sides stay zeros
         for (int64_t task = begin; task < end; ++task) {
             const int64_t p = task / blocks, Y0 = (task % blocks) * ROWS, Y1 = std::min(d.H, Y0 + ROWS);
@@ -254,7 +269,7 @@ at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &
                 // rows r with r <= Yr < r + K, in increasing r (the order the transposed filter adds them)
                 const int64_t lo = std::max<int64_t>(0, Yr - K + 1), hi = std::min(d.Ho - 1, Yr);
                 const float *xr = x + Yr * W, *yr = yy + Yr * W;
-                float *o = out + p * HW + Yr * W;
+                float *o = row.data();
                 const float *t0 = t.data(), *t1 = t0 + n * W, *t2 = t1 + n * W;
                 int64_t i = 0;
                 for (; i + 2 * VL <= W; i += 2 * VL) back_chunk<2>(t0, t1, t2, w, Yr, lo, hi, r0, W, xr, yr, o, i);
@@ -270,6 +285,8 @@ at::Tensor ssim_bwd(const at::Tensor &X, const at::Tensor &Y, const at::Tensor &
                     }
                     o[i] = b0 + 2.0f * yr[i] * b1 + xr[i] * b2;
                 }
+                write_row(o, xr, yr, W, l1, channels_last ? out + (p / d.C * HW + Yr * W) * d.C + p % d.C
+                                                          : out + p * HW + Yr * W, channels_last ? d.C : 1);
             }
         }
     });
