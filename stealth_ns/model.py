@@ -1,7 +1,8 @@
 """``StealthSplatModel``: splatfacto that also trains on a CPU.
 
 A subclass of nerfstudio's ``SplatfactoModel`` (so the viewer, export and checkpoint code
-keep working) with three changes:
+keep working; its loss and metrics in ``model_losses.py``, the main loss term fused on the CPU)
+with three changes:
 
 - rendering goes through :func:`stealth_ns.raster.rasterization`, which uses gsplat's CUDA
   kernels on a CUDA device and a CPU rasterizer otherwise (``rasterizer_backend``);

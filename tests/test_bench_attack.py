@@ -18,6 +18,7 @@ from types import SimpleNamespace
 import pytest
 from conftest import run_cli
 
+from stealth_ns.attack.normal_draw import NOISE_GENERATOR
 from stealth_ns.bench.attack import run_bench
 from stealth_ns.bench.execute import METRICS_FILE, METRICS_LOG
 from stealth_ns.bench.plan import bench_plan
@@ -865,6 +866,32 @@ def test_train_spec_paths_and_finished_semantics(tmp_path, monkeypatch):
     assert is_finished(TrainSpec(**{**spec.__dict__, "iterations": None}))
     (spec.run_dir / "nerfstudio_models" / "step-000000004.ckpt").unlink()
     assert run_status(spec) == "partial"
+
+
+def test_attacked_runs_of_another_noise_generator_are_not_reused(tmp_path, monkeypatch):
+    """A training that draws view noise records the generator; a marker without it (an earlier version's
+    Mersenne Twister draws) is retrained. Runs that draw none keep their identity (reused)."""
+    base = {"scene": tmp_path / "scene", "name": "r", "output_dir": tmp_path / "runs", "iterations": 5}
+    attacked, clean = TrainSpec(**base), TrainSpec(**base, extra=("--pipeline.attack.enabled", "False"))
+    assert attacked.identity()["view_noise"] == NOISE_GENERATOR
+    assert "view_noise" not in clean.identity()
+    for extra in (
+        ("--pipeline.attack.enabled=False",),
+        ("--pipeline.attack.view-noise", "False"),
+        ("--pipeline.attack.view_noise", "False"),
+        ("--pipeline.attack.noise-sigma0", "0"),
+    ):
+        assert not TrainSpec(**base, extra=extra).draws_view_noise(), extra
+    assert TrainSpec(**base, extra=("--pipeline.attack.noise-sigma0", "30")).draws_view_noise()
+    assert not TrainSpec(**base, method="splatfacto").draws_view_noise()
+
+    monkeypatch.setattr(runs, "run_command", FakeTraining())
+    train(attacked, stream=False)
+    assert is_finished(attacked)
+    marker = json.loads(attacked.marker_path.read_text())
+    del marker["identity"]["view_noise"]  # as an earlier version wrote it
+    attacked.marker_path.write_text(json.dumps(marker))
+    assert not is_finished(attacked)
 
 
 @pytest.mark.slow

@@ -20,14 +20,24 @@ deviates is the first ``count`` of this sequence, whatever the shape it is given
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 if TYPE_CHECKING:
     import torch
 
-__all__ = ["normal_deviates", "normal_deviates_reference", "noisy_uint8", "noisy_uint8_reference"]
+__all__ = [
+    "NOISE_GENERATOR",
+    "normal_deviates",
+    "normal_deviates_reference",
+    "noisy_uint8",
+    "noisy_uint8_reference",
+]
+
+NOISE_GENERATOR = "splitmix64-box-muller"
+"""The generator's name, in the identity of a training that draws view noise (``runs.training``): a
+finished run drawn with another generator (torch's Mersenne Twister before it) is retrained, not reused."""
 
 _U64 = np.uint64
 _F = np.float32
@@ -104,7 +114,8 @@ def noisy_uint8_reference(image: np.ndarray, sigma: float, key: int) -> np.ndarr
     return np.clip(np.rint(image.astype(_F) + _F(sigma) * z), 0, 255).astype(np.uint8)
 
 
-def _extension():  # noqa: ANN202 - the compiled module or None
+def _extension() -> Any:
+    """The compiled module, or None where it is unavailable."""
     from stealth_ns.raster.cpp_backend import load_extension
 
     return load_extension()

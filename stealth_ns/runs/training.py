@@ -30,12 +30,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from stealth_ns.attack.normal_draw import NOISE_GENERATOR
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import write_json_atomic
 
 #: Written into the run folder after a successful ``ns-train``; its presence (with the final
 #: checkpoint) is what "finished" means.
 MARKER = "stealth-ns-finished.json"
+# ns-train options that, set to False or 0, keep a stealth-splat training from drawing view noise
+_NOISE_SWITCHES = (
+    "--pipeline.attack.enabled",
+    "--pipeline.attack.view-noise",
+    "--pipeline.attack.noise-sigma0",
+)
 #: Default log of ``ns-train`` inside the run folder.
 TRAIN_LOG = "ns-train.log"
 
@@ -185,7 +192,24 @@ class TrainSpec:
         }
         if self.dataparser != "nerfstudio-data" or self.dataparser_args:  # old markers have no such key
             identity["dataparser"] = [self.dataparser, *self.dataparser_args]
+        if self.draws_view_noise():  # runs of versions with another noise generator are retrained
+            identity["view_noise"] = NOISE_GENERATOR
         return identity
+
+    def draws_view_noise(self) -> bool:
+        """Whether the training draws the attack's view noise: a stealth-splat method whose extra options
+        do not turn the attack, its view noise or the noise's strength off. Options it cannot read count
+        as drawing (the run is retrained rather than wrongly reused)."""
+        if self.method not in ("stealth-splat", "stealth-splat-lite"):
+            return False
+        options: dict[str, str] = {}
+        for i, arg in enumerate(self.extra):
+            key, eq, value = arg.partition("=")
+            if key.startswith("--"):
+                following = self.extra[i + 1] if i + 1 < len(self.extra) else ""
+                options[key.replace("_", "-")] = value if eq else following
+        off = ("false", "0", "0.0", "no")
+        return not any(options.get(key, "").strip().lower() in off for key in _NOISE_SWITCHES)
 
 
 @dataclass(frozen=True)
