@@ -16,6 +16,7 @@ import pytest
 import tyro
 from test_bench_attack import ranked_forward_scene
 
+from stealth_ns.attack.normal_draw import NOISE_GENERATOR
 from stealth_ns.bench import poisoned_copies
 from stealth_ns.bench.attack import run_bench
 from stealth_ns.bench.plan import bench_plan
@@ -77,6 +78,9 @@ def test_identity_and_scene_id_follow_the_settings(tmp_path):
     assert _job(tmp_path, kind="data-only", iterations=3000).scene_id == data_only.scene_id
     assert _job(tmp_path, kind="data-only", seed=1).scene_id != data_only.scene_id
     assert _job(tmp_path, kind="data-only", view=None).scene_id != data_only.scene_id
+    # static view noise: the generator is part of what the copy was made from
+    noisy = _job(tmp_path, kind="data-only", args=("--view-noise", "--noise-sigma0", "30"))
+    assert noisy.identity()["view_noise"] == NOISE_GENERATOR and "view_noise" not in data_only.identity()
 
 
 def test_marker_and_log_sit_beside_the_copy(tmp_path):

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from stealth_ns.attack.normal_draw import NOISE_GENERATOR
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import write_json_atomic
 from stealth_ns.poisoning.dataset_copy import RECORD_DIR, RECORD_FILE
@@ -60,6 +61,10 @@ class PoisonJob:
         }
         if self.kind == "ipa":  # the attacker trains; data-only only sets up the model
             identity["iterations"] = self.iterations
+        if self.kind == "data-only" and any(
+            a.partition("=")[0].replace("_", "-") == "--view-noise" for a in self.args
+        ):
+            identity["view_noise"] = NOISE_GENERATOR  # static noise: a copy with other draws is made again
         return identity
 
     @property
