@@ -61,9 +61,7 @@ class PoisonJob:
         }
         if self.kind == "ipa":  # the attacker trains; data-only only sets up the model
             identity["iterations"] = self.iterations
-        if self.kind == "data-only" and any(
-            a.partition("=")[0].replace("_", "-") == "--view-noise" for a in self.args
-        ):
+        if self.kind == "data-only" and "--view-noise" in runs.cli_options(self.args):
             identity["view_noise"] = NOISE_GENERATOR  # static noise: a copy with other draws is made again
         return identity
 

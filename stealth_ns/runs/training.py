@@ -115,6 +115,17 @@ def _wait_with_peak_rss(proc: subprocess.Popen) -> tuple[int, float | None]:
     return proc.returncode, usage.ru_maxrss / 1024  # KiB on Linux
 
 
+def cli_options(args: tuple[str, ...]) -> dict[str, str]:
+    """Command-line options by name (``_`` read as ``-``, as tyro accepts both) with their values: the part
+    after ``=``, else the next argument ("" at the end; a flag's value is whatever follows it)."""
+    options: dict[str, str] = {}
+    for i, arg in enumerate(args):
+        name, eq, value = arg.partition("=")
+        if name.startswith("--"):
+            options[name.replace("_", "-")] = value if eq else (args[i + 1] if i + 1 < len(args) else "")
+    return options
+
+
 @dataclass(frozen=True)
 class TrainSpec:
     """One ``ns-train`` run: which scene, under which name, with which extra options."""
@@ -202,12 +213,7 @@ class TrainSpec:
         as drawing (the run is retrained rather than wrongly reused)."""
         if self.method not in ("stealth-splat", "stealth-splat-lite"):
             return False
-        options: dict[str, str] = {}
-        for i, arg in enumerate(self.extra):
-            key, eq, value = arg.partition("=")
-            if key.startswith("--"):
-                following = self.extra[i + 1] if i + 1 < len(self.extra) else ""
-                options[key.replace("_", "-")] = value if eq else following
+        options = cli_options(self.extra)
         off = ("false", "0", "0.0", "no")
         return not any(options.get(key, "").strip().lower() in off for key in _NOISE_SWITCHES)
 
