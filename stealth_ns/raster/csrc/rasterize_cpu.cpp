@@ -179,8 +179,12 @@ inline lmask16 m_nonzero(vi16 a) { return _mm512_test_epi32_mask((__m512i)a, (__
 inline vi16 m_lanes16(lmask16 m) { return (vi16)_mm512_movm_epi32(m); }
 inline bool m_any16(lmask16 m) { return m != 0; }
 inline int m_count16(lmask16 m) { return __builtin_popcount(m); }
+inline lmask m_lo8(lmask16 m) { return (lmask)m; }  // lanes 0-7
+inline lmask m_hi8(lmask16 m) { return (lmask)(m >> 8); }  // lanes 8-15
 inline vf16 m_sel(lmask16 m, vf16 a, vf16 b) { return (vf16)_mm512_mask_blend_ps(m, (__m512)b, (__m512)a); }
 inline vi16 m_seli(lmask16 m, vi16 a, vi16 b) { return (vi16)_mm512_mask_blend_epi32(m, (__m512i)b, (__m512i)a); }
+// p[l] = v[l] where lane l of m is set; the other lanes of p keep their values
+inline void m_stori(int32_t *p, lmask m, vi v) { _mm256_mask_storeu_epi32(p, m, (__m256i)v); }
 #else
 typedef vi lmask;
 typedef vi16 lmask16;
@@ -193,6 +197,7 @@ template <class V> inline auto m_ige(V a, V b) { return a >= b; }
 template <class V> inline auto m_nonzero(V a) { return a != 0; }
 template <class M, class V> inline V m_sel(M m, V a, V b) { return m ? a : b; }
 template <class M, class V> inline V m_seli(M m, V a, V b) { return m ? a : b; }
+inline void m_stori(int32_t *p, lmask m, vi v) { vist(p, m ? v : vild(p)); }
 inline vi m_lanes(lmask m) { return m; }
 inline bool m_any(lmask m) { return vany(m); }
 inline int m_count(lmask m) { return vcount(m); }
@@ -204,6 +209,8 @@ inline uint32_t m_bits(lmask m) {
 inline vi16 m_lanes16(lmask16 m) { return m; }
 inline bool m_any16(lmask16 m) { return m_any(vlo(m)) || m_any(vhi(m)); }
 inline int m_count16(lmask16 m) { return m_count(vlo(m)) + m_count(vhi(m)); }
+inline lmask m_lo8(lmask16 m) { return vlo(m); }
+inline lmask m_hi8(lmask16 m) { return vhi(m); }
 #endif
 
 #if defined(__AVX512VL__) && defined(__AVX512DQ__)
@@ -442,6 +449,7 @@ template <> struct Blocks<1> {
     static void st(float *p, const Block *b, F v) { vst(p + b[0].o, v); }
     static I ldi(const int32_t *p, const Block *b) { return vild(p + b[0].o); }
     static void sti(int32_t *p, const Block *b, I v) { vist(p + b[0].o, v); }
+    static void stmi(int32_t *p, const Block *b, M m, I v) { m_stori(p + b[0].o, m, v); }
     static I col(const Block *b) { return vi{0, 1, 2, 3, 4, 5, 6, 7} + b[0].b; }
     static I lx0(const Block *b) { return viset(b[0].lx0); }
     static I lx1(const Block *b) { return viset(b[0].lx1); }
@@ -466,6 +474,10 @@ template <> struct Blocks<2> {
     static void sti(int32_t *p, const Block *b, I v) {
         vist(p + b[0].o, vlo(v));
         vist(p + b[1].o, vhi(v));
+    }
+    static void stmi(int32_t *p, const Block *b, M m, I v) {
+        m_stori(p + b[0].o, m_lo8(m), vlo(v));
+        m_stori(p + b[1].o, m_hi8(m), vhi(v));
     }
     static I col(const Block *b) { return vcat(Blocks<1>::col(b), Blocks<1>::col(b + 1)); }
     static I lx0(const Block *b) { return vcat(viset(b[0].lx0), viset(b[1].lx0)); }
@@ -494,6 +506,10 @@ template <> struct Blocks<4> {
     static void sti(int32_t *p, const Block *b, I v) {
         H::sti(p, b, v.a);
         H::sti(p, b + 2, v.b);
+    }
+    static void stmi(int32_t *p, const Block *b, M m, I v) {
+        H::stmi(p, b, m_lo(m), v.a);
+        H::stmi(p, b + 2, m_hi(m), v.b);
     }
     static I col(const Block *b) { return {H::col(b), H::col(b + 2)}; }
     static I lx0(const Block *b) { return {H::lx0(b), H::lx0(b + 2)}; }
@@ -794,7 +810,7 @@ void fwd_impl(
                     // zero weight where the lane does not contribute: adds exactly +-0 (finite colours)
                     const F vis = m_sel(contrib, e.alpha * T, F{});
                     B::st(Tp, b, m_sel(contrib, next_T, T));
-                    B::sti(lastp, b, m_seli(contrib, B::bci((int32_t)idx), B::ldi(lastp, b)));
+                    B::stmi(lastp, b, contrib, B::bci((int32_t)idx));
                     for (int k = 0; k < D; ++k) {
                         float *__restrict__ cp = colp + (size_t)k * npad;
                         B::st(cp, b, B::ld(cp, b) + cptr[k] * vis);
