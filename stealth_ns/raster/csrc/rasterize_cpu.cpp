@@ -66,6 +66,7 @@
 #include <memory>
 #include <numeric>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace stealth_ns {
@@ -677,16 +678,6 @@ inline TaskPixels task_pixels(int64_t task, const TileGeom &g) {
     return r;
 }
 
-// The tasks of task_order, handed out one at a time in that order (as schedule(dynamic, 1) did); a
-// thread claims its next task before it runs the current one, so that it can bring the next one's
-// pixels into the cache meanwhile.  Which thread runs a task never changes its result.
-class TaskQueue {
-  public:
-    int64_t claim() { return next_.fetch_add(1, std::memory_order_relaxed); }
-
-  private:
-    std::atomic<int64_t> next_{0};
-};
 
 // Reads one byte of every cache line of the rectangle r of a per-pixel array (`bytes` bytes per
 // pixel, rows of g.W pixels; camera r.cam of a [C, H, W, ...] array), so that the task that reads or
@@ -705,6 +696,43 @@ inline void touch_rect(const void *base, const TaskPixels &r, const TileGeom &g,
     }
     asm volatile("" : : "r"(sink));  // keeps the loads
 }
+
+// A per-pixel array for touch_rect: its data and bytes per pixel.
+struct PixelArray {
+    const void *data;
+    int bytes;
+};
+
+// The tasks of `order`, handed out one at a time in that order (as schedule(dynamic, 1) did).  A
+// thread claims its next task before it runs the current one and touches that next task's pixels in
+// `arrays` meanwhile.  Which thread runs a task never changes its result.
+class TaskQueue {
+  public:
+    TaskQueue(const std::vector<int32_t> &order, const TileGeom &g, std::vector<PixelArray> arrays)
+        : order_(order), g_(g), arrays_(std::move(arrays)) {}
+
+    // The calling thread's next task in r (false when none is left); `ahead` is the thread's task
+    // claimed in advance, -1 before its first call.
+    bool next(int64_t &ahead, TaskPixels &r) {
+        const int64_t n = (int64_t)order_.size(), t = ahead >= 0 ? ahead : claim();
+        if (t >= n) return false;
+        ahead = claim();
+        if (ahead < n) {
+            const TaskPixels a = task_pixels(order_[ahead], g_);
+            for (const PixelArray &p : arrays_) touch_rect(p.data, a, g_, p.bytes);
+        }
+        r = task_pixels(order_[t], g_);
+        return true;
+    }
+
+  private:
+    int64_t claim() { return next_.fetch_add(1, std::memory_order_relaxed); }
+
+    const std::vector<int32_t> &order_;
+    const TileGeom &g_;
+    const std::vector<PixelArray> arrays_;
+    std::atomic<int64_t> next_{0};
+};
 
 // The (camera, tile) tasks, longest list first: handed out one at a time, the threads then finish
 // together (longest-processing-time-first) instead of one thread taking a long tile last.  Which
@@ -741,7 +769,7 @@ void fwd_impl(
     const int64_t n_tasks = C * n_tiles;
     const std::vector<int32_t> task_order = tasks_by_cost(offsets, n_tasks, n_isects);
     const int64_t HW = (int64_t)g.H * g.W;
-    TaskQueue queue;
+    TaskQueue queue(task_order, g, {{out_T, 4}, {out_alphas, 4}, {out_last, 4}, {out_colors, 4 * D}});  // outputs
 
 #pragma omp parallel num_threads(n_threads)
     {
@@ -754,16 +782,8 @@ void fwd_impl(
         int32_t *__restrict__ donep = done_buf.data();
         BlockVisitor visitor(ts, stride);
 
-        for (int64_t t = queue.claim(), t_next; t < n_tasks; t = t_next) {
-            t_next = queue.claim();
-            if (t_next < n_tasks) {  // the outputs the next task writes
-                const TaskPixels n = task_pixels(task_order[t_next], g);
-                touch_rect(out_T, n, g, 4);
-                touch_rect(out_alphas, n, g, 4);
-                touch_rect(out_last, n, g, 4);
-                touch_rect(out_colors, n, g, 4 * D);
-            }
-            const TaskPixels r = task_pixels(task_order[t], g);
+        TaskPixels r;
+        for (int64_t ahead = -1; queue.next(ahead, r);) {
             const int64_t cam = r.cam, tile = r.tile;
             const int x_base = r.x0, y_base = r.y0, tx1 = r.x1, ty1 = r.y1;
             if (tx1 <= x_base || ty1 <= y_base) continue;  // tile fully outside the image
@@ -869,7 +889,7 @@ void bwd_impl(
     const int64_t n_tasks = C * n_tiles;
     const std::vector<int32_t> task_order = tasks_by_cost(offsets, n_tasks, n_isects);
     const int64_t HW = (int64_t)g.H * g.W;
-    TaskQueue queue;
+    TaskQueue queue(task_order, g, {{T_final, 4}, {last_ids, 4}, {v_alphas_out, 4}, {v_colors_out, 4 * D}});  // inputs
 
 #pragma omp parallel num_threads(n_threads)
     {
@@ -884,16 +904,8 @@ void bwd_impl(
         BlockVisitor visitor(ts, stride);
         float *__restrict__ my_buf = mode == 2 ? thread_buf + (size_t)omp_get_thread_num() * C * N * S : nullptr;
 
-        for (int64_t t = queue.claim(), t_next; t < n_tasks; t = t_next) {
-            t_next = queue.claim();
-            if (t_next < n_tasks) {  // the pixels the next task reads
-                const TaskPixels n = task_pixels(task_order[t_next], g);
-                touch_rect(T_final, n, g, 4);
-                touch_rect(last_ids, n, g, 4);
-                touch_rect(v_alphas_out, n, g, 4);
-                touch_rect(v_colors_out, n, g, 4 * D);
-            }
-            const TaskPixels r = task_pixels(task_order[t], g);
+        TaskPixels r;
+        for (int64_t ahead = -1; queue.next(ahead, r);) {
             const int64_t cam = r.cam, tile = r.tile;
             const int x_base = r.x0, y_base = r.y0, tx1 = r.x1, ty1 = r.y1;
             if (tx1 <= x_base || ty1 <= y_base) continue;
