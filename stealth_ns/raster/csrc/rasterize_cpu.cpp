@@ -111,6 +111,24 @@ inline float vsum(vf v) {
     // fixed order -> deterministic
     return ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]));
 }
+// out[i] = vsum(v[i]) for i < n, bitwise: eight at a time with horizontal adds, which add the lanes in
+// vsum's order.  hadd(x, y) = [x0+x1, x2+x3, y0+y1, y2+y3, x4+x5, x6+x7, y4+y5, y6+y7]; two rounds
+// of it give each vector's ((v0+v1)+(v2+v3)) in the low half and ((v4+v5)+(v6+v7)) in the high half.
+inline void vsums(const vf *v, int n, float *out) {
+    int i = 0;
+#if defined(__AVX__)
+    for (; i + 8 <= n; i += 8) {
+        const __m256 a = _mm256_hadd_ps(
+            _mm256_hadd_ps((__m256)v[i], (__m256)v[i + 1]), _mm256_hadd_ps((__m256)v[i + 2], (__m256)v[i + 3])
+        );
+        const __m256 b = _mm256_hadd_ps(
+            _mm256_hadd_ps((__m256)v[i + 4], (__m256)v[i + 5]), _mm256_hadd_ps((__m256)v[i + 6], (__m256)v[i + 7])
+        );
+        _mm256_storeu_ps(out + i, _mm256_add_ps(_mm256_permute2f128_ps(a, b, 0x20), _mm256_permute2f128_ps(a, b, 0x31)));
+    }
+#endif
+    for (; i < n; ++i) out[i] = vsum(v[i]);
+}
 inline vf vsel(vi m, vf a, vf b) { return m ? a : b; }
 template <class F> inline F vmin(F a, F b) { return a < b ? a : b; }  // std::min(b, a) semantics
 inline vf vsqrt(vf x) {
@@ -895,7 +913,10 @@ void bwd_impl(
     {
         std::vector<float> T_buf(npad), w_buf(npad), vout_buf((size_t)npad * D), acc_buf((size_t)npad * D);
         std::vector<int32_t> last_buf(npad);
-        std::vector<vf> grgb_dyn(DT > 0 ? 0 : D);
+        std::vector<vf> grgb_dyn(DT > 0 ? 0 : D), terms_dyn(DT > 0 ? 0 : 6 + D);
+        std::vector<float> sums_dyn(DT > 0 ? 0 : 6 + D);
+        vf terms_st[DT > 0 ? 6 + DT : 1];
+        float sums_st[DT > 0 ? 6 + DT : 1];
         float *__restrict__ Tp = T_buf.data();
         float *__restrict__ wp = w_buf.data();
         float *__restrict__ voutp = vout_buf.data();
@@ -1005,34 +1026,30 @@ void bwd_impl(
                     }
                 });
                 if (!hit) continue;
-                const float sx = vsum(g_x), sy = vsum(g_y), sa = vsum(g_ca), sb = vsum(g_cb), sc = vsum(g_cc),
-                            so = vsum(g_o);
+                // the record's sums in its order: xy, conic, opacity, colours
+                vf *terms = DT > 0 ? terms_st : terms_dyn.data();
+                float *sums = DT > 0 ? sums_st : sums_dyn.data();
+                terms[0] = g_x;
+                terms[1] = g_y;
+                terms[2] = g_ca;
+                terms[3] = g_cb;
+                terms[4] = g_cc;
+                terms[5] = g_o;
+                for (int k = 0; k < D; ++k) terms[6 + k] = grgb[k];
+                vsums(terms, S, sums);
                 if (mode == 0) {
-                    float *r = isect_buf + idx * S;
-                    r[0] = sx;
-                    r[1] = sy;
-                    r[2] = sa;
-                    r[3] = sb;
-                    r[4] = sc;
-                    r[5] = so;
-                    for (int k = 0; k < D; ++k) r[6 + k] = vsum(grgb[k]);
+                    std::memcpy(isect_buf + idx * S, sums, sizeof(float) * S);
                 } else if (mode == 1) {
-                    atomic_add(v_means2d + 2 * gi, sx);
-                    atomic_add(v_means2d + 2 * gi + 1, sy);
-                    atomic_add(v_conics + 3 * gi, sa);
-                    atomic_add(v_conics + 3 * gi + 1, sb);
-                    atomic_add(v_conics + 3 * gi + 2, sc);
-                    atomic_add(v_opacities + gi, so);
-                    for (int k = 0; k < D; ++k) atomic_add(v_colors + gi * D + k, vsum(grgb[k]));
+                    atomic_add(v_means2d + 2 * gi, sums[0]);
+                    atomic_add(v_means2d + 2 * gi + 1, sums[1]);
+                    atomic_add(v_conics + 3 * gi, sums[2]);
+                    atomic_add(v_conics + 3 * gi + 1, sums[3]);
+                    atomic_add(v_conics + 3 * gi + 2, sums[4]);
+                    atomic_add(v_opacities + gi, sums[5]);
+                    for (int k = 0; k < D; ++k) atomic_add(v_colors + gi * D + k, sums[6 + k]);
                 } else {
                     float *r = my_buf + gi * S;
-                    r[0] += sx;
-                    r[1] += sy;
-                    r[2] += sa;
-                    r[3] += sb;
-                    r[4] += sc;
-                    r[5] += so;
-                    for (int k = 0; k < D; ++k) r[6 + k] += vsum(grgb[k]);
+                    for (int k = 0; k < S; ++k) r[k] += sums[k];
                 }
             }
         }
