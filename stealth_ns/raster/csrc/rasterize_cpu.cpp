@@ -459,6 +459,8 @@ struct Block {
 // tile state, their per-lane columns, spans and row offsets, and adding a 16-lane contribution to an
 // 8-lane sum as two 8-lane additions in list order (the first block's, then the second's), which
 // keeps every sum bitwise that of one block at a time.
+// x + 0.5 of tile-local columns lx in a tile starting at column x_base
+template <class F, class I> inline F pixel_centres(I lx, int x_base) { return __builtin_convertvector(lx + x_base, F) + 0.5f; }
 template <int U> struct Blocks;
 template <> struct Blocks<1> {
     using F = vf;
@@ -473,7 +475,7 @@ template <> struct Blocks<1> {
     static I lx0(const Block *b) { return viset(b[0].lx0); }
     static I lx1(const Block *b) { return viset(b[0].lx1); }
     static F dy(const Block *b) { return vset(b[0].dy); }
-    static F px(I lx, int x_base) { return __builtin_convertvector(lx + x_base, F) + 0.5f; }
+    static F px(I lx, int x_base) { return pixel_centres<F>(lx, x_base); }
     static I bci(int32_t a) { return viset(a); }
     static void add(vf &sum, F c) { sum += c; }
     static bool any(M m) { return m_any(m); }
@@ -502,7 +504,7 @@ template <> struct Blocks<2> {
     static I lx0(const Block *b) { return vcat(viset(b[0].lx0), viset(b[1].lx0)); }
     static I lx1(const Block *b) { return vcat(viset(b[0].lx1), viset(b[1].lx1)); }
     static F dy(const Block *b) { return vcat(vset(b[0].dy), vset(b[1].dy)); }
-    static F px(I lx, int x_base) { return __builtin_convertvector(lx + x_base, F) + 0.5f; }
+    static F px(I lx, int x_base) { return pixel_centres<F>(lx, x_base); }
     static I bci(int32_t a) { return vcat(viset(a), viset(a)); }
     static void add(vf &sum, F c) { sum = (sum + vlo(c)) + vhi(c); }
     static bool any(M m) { return m_any16(m); }
@@ -695,7 +697,6 @@ inline TaskPixels task_pixels(int64_t task, const TileGeom &g) {
     r.y1 = std::min(r.y0 + g.ts, g.H);
     return r;
 }
-
 
 // Reads one byte of every cache line of the rectangle r of a per-pixel array (`bytes` bytes per
 // pixel, rows of g.W pixels; camera r.cam of a [C, H, W, ...] array), so that the task that reads or
@@ -913,10 +914,15 @@ void bwd_impl(
     {
         std::vector<float> T_buf(npad), w_buf(npad), vout_buf((size_t)npad * D), acc_buf((size_t)npad * D);
         std::vector<int32_t> last_buf(npad);
-        std::vector<vf> grgb_dyn(DT > 0 ? 0 : D), terms_dyn(DT > 0 ? 0 : 6 + D);
-        std::vector<float> sums_dyn(DT > 0 ? 0 : 6 + D);
+        // a Gaussian's per-tile gradient sums in the record's order (xy, conic, opacity, colours),
+        // 8 lanes each, and their totals
+        std::vector<vf> terms_dyn(DT > 0 ? 0 : S);
+        std::vector<float> sums_dyn(DT > 0 ? 0 : S);
         vf terms_st[DT > 0 ? 6 + DT : 1];
         float sums_st[DT > 0 ? 6 + DT : 1];
+        vf *__restrict__ terms = DT > 0 ? terms_st : terms_dyn.data();
+        float *__restrict__ sums = DT > 0 ? sums_st : sums_dyn.data();
+        vf *__restrict__ grgb = terms + 6;
         float *__restrict__ Tp = T_buf.data();
         float *__restrict__ wp = w_buf.data();
         float *__restrict__ voutp = vout_buf.data();
@@ -972,8 +978,6 @@ void bwd_impl(
                 if (gp.kind == kSkip) continue;
                 const float mx = gp.mx, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;  // dy: from the block
                 const float *__restrict__ cptr = colors + gi * D;
-                vf grgb_st[DT > 0 ? DT : 1];
-                vf *grgb = DT > 0 ? grgb_st : grgb_dyn.data();
                 for (int k = 0; k < D; ++k) grgb[k] = vset(0.f);
                 vf g_ca = vset(0.f), g_cb = g_ca, g_cc = g_ca, g_x = g_ca, g_y = g_ca, g_o = g_ca;
                 bool hit = false;
@@ -1026,16 +1030,12 @@ void bwd_impl(
                     }
                 });
                 if (!hit) continue;
-                // the record's sums in its order: xy, conic, opacity, colours
-                vf *terms = DT > 0 ? terms_st : terms_dyn.data();
-                float *sums = DT > 0 ? sums_st : sums_dyn.data();
                 terms[0] = g_x;
                 terms[1] = g_y;
                 terms[2] = g_ca;
                 terms[3] = g_cb;
                 terms[4] = g_cc;
                 terms[5] = g_o;
-                for (int k = 0; k < D; ++k) terms[6 + k] = grgb[k];
                 vsums(terms, S, sums);
                 if (mode == 0) {
                     std::memcpy(isect_buf + idx * S, sums, sizeof(float) * S);
