@@ -41,6 +41,18 @@ void check_args(const at::Tensor &render, const at::Tensor &alpha, const at::Ten
 
 inline float clamp01(float x) { return std::min(std::max(x, 0.f), 1.f); }  // torch's: NaN stays NaN
 
+// Pixels [p0, p1) of the forward; DT > 0: D known at compile time (with D only known at run time GCC
+// kept the loop scalar: 1008x756, Zen 3, 2 threads, 2.18 -> 1.18 ms).
+template <int DT>
+void fwd_pixels(const float *__restrict__ r, const float *__restrict__ a, const float *__restrict__ bg,
+                float *__restrict__ out, int64_t D_rt, int64_t p0, int64_t p1) {
+    const int64_t D = DT > 0 ? DT : D_rt;
+    for (int64_t p = p0; p < p1; ++p) {
+        const float t = 1.f - a[p];
+        for (int64_t c = 0; c < D; ++c) out[p * D + c] = clamp01(r[p * D + c] + t * bg[c]);
+    }
+}
+
 // Pixels [p0, p1) of the backward; DT > 0: D known at compile time. No branch on the data (the clamp's
 // test is a select): a render partly outside [0, 1] made the branches mispredict.
 template <int DT>
@@ -73,10 +85,10 @@ at::Tensor composite_fwd(const at::Tensor &render, const at::Tensor &alpha, cons
     const float *r = render.data_ptr<float>(), *a = alpha.data_ptr<float>(), *bg = background.data_ptr<float>();
     float *out = rgb.data_ptr<float>();
     at::parallel_for(0, P, kGrain, [&](int64_t p0, int64_t p1) {
-        for (int64_t p = p0; p < p1; ++p) {
-            const float t = 1.f - a[p];
-            for (int64_t c = 0; c < D; ++c) out[p * D + c] = clamp01(r[p * D + c] + t * bg[c]);
-        }
+        if (D == 3)
+            fwd_pixels<3>(r, a, bg, out, D, p0, p1);
+        else
+            fwd_pixels<0>(r, a, bg, out, D, p0, p1);
     });
     return rgb;
 }

@@ -12,9 +12,9 @@
 // rasterizer never reads it).  Each Gaussian's backward sums its cameras in a fixed order, one
 // Gaussian per lane: deterministic, whatever the thread count.
 //
-// Vectorised across Gaussians: the per-Gaussian math is written once on 16-lane vectors (GCC vector
-// extensions: one AVX-512 register, two AVX2 ones, four NEON ones), one Gaussian per lane, gathered
-// from and scattered to the [N, 3|4] rows in blocks of 16.  Every lane evaluates the same float
+// Vectorised across Gaussians: the per-Gaussian math is written once on kLanes-lane vectors (GCC vector
+// extensions), one Gaussian per lane, gathered from and scattered to the [N, 3|4] rows in blocks of
+// kLanes.  Every lane evaluates the same float
 // expressions in the same order as a scalar loop would (no FMA contraction, no fast-math; sqrt and
 // division are correctly rounded), so the results do not depend on the lane a Gaussian lands in.
 // Branches become selects: masked-out lanes compute and are discarded, never stored.
@@ -34,7 +34,15 @@ namespace {
 
 constexpr int64_t kGrain = 512;
 
+// 16 lanes (one register) with AVX-512, 8 (one AVX register) elsewhere: on vectors wider than the
+// target's registers GCC lowers the comparisons and selects lane by lane, a branch per lane (the AVX2
+// build's object code had 208 scalar comparisons with 16 lanes, none with 8).  The lane count does not
+// change any result.
+#if defined(__AVX512F__)
 constexpr int kLanes = 16;
+#else
+constexpr int kLanes = 8;
+#endif
 typedef float vf __attribute__((vector_size(4 * kLanes)));
 typedef int32_t vi __attribute__((vector_size(4 * kLanes)));  // masks: -1 (true) / 0 per lane
 

@@ -103,9 +103,13 @@ inline bool vany(vi m) {
     return (t[0] | t[1] | t[2] | t[3]) != 0;
 }
 inline int vcount(vi m) {
+#if defined(__AVX__)
+    return __builtin_popcount(_mm256_movemask_ps((__m256)m));
+#else
     int n = 0;
     for (int l = 0; l < VW; ++l) n += m[l] != 0;
     return n;
+#endif
 }
 inline float vsum(vf v) {
     // fixed order -> deterministic
@@ -153,12 +157,44 @@ inline vf vfloor(vf x) {
 }
 #endif
 
+// Two vectors used as one: each operation is applied to both halves, lane by lane.
+template <class V> struct Pair {
+    V a, b;
+};
+template <class S> constexpr bool kScalar = std::is_arithmetic_v<S>;
+#define STEALTH_NS_PAIR_OP(op)                                                                         \
+    template <class V> inline Pair<V> operator op(Pair<V> x, Pair<V> y) { return {x.a op y.a, x.b op y.b}; } \
+    template <class V, class S, std::enable_if_t<kScalar<S>, int> = 0>                                  \
+    inline Pair<V> operator op(Pair<V> x, S s) {                                                        \
+        return {x.a op s, x.b op s};                                                                    \
+    }                                                                                                   \
+    template <class V, class S, std::enable_if_t<kScalar<S>, int> = 0>                                  \
+    inline Pair<V> operator op(S s, Pair<V> y) {                                                        \
+        return {s op y.a, s op y.b};                                                                    \
+    }
+STEALTH_NS_PAIR_OP(+)
+STEALTH_NS_PAIR_OP(-)
+STEALTH_NS_PAIR_OP(*)
+STEALTH_NS_PAIR_OP(/)
+STEALTH_NS_PAIR_OP(|)
+STEALTH_NS_PAIR_OP(&)
+#undef STEALTH_NS_PAIR_OP
+template <class V> inline Pair<V> operator-(Pair<V> x) { return {-x.a, -x.b}; }
+template <class V> inline Pair<V> operator~(Pair<V> x) { return {~x.a, ~x.b}; }
+template <class V> inline Pair<V> &operator+=(Pair<V> &x, Pair<V> y) { return x = x + y; }
+template <class V> inline Pair<V> vmin(Pair<V> x, Pair<V> y) { return {vmin(x.a, y.a), vmin(x.b, y.b)}; }
+
 // 16-lane vectors: two blocks of 8 pixels side by side, lanes 0-7 the first block and 8-15 the
 // second.  A Gaussian's blocks are evaluated two at a time: the work of a block is one long chain
 // of dependent operations (the exp polynomial, the division of the backward), and one block at a
 // time the processor did not overlap enough of them.  1 MP, 1 thread, Zen 4: backward 132 -> 105 ms,
-// forward 76 -> 66 ms.  One 512-bit register with AVX-512, two 256-bit ones elsewhere.  Every lane
-// does the operations of an 8-wide block, so the results are bitwise the same.
+// forward 76 -> 66 ms.  Every lane does the operations of an 8-wide block, so the results are bitwise
+// the same.  One 512-bit register with AVX-512.  Elsewhere a Pair of 8-lane vectors: without AVX-512
+// GCC compiles the comparisons and selects of 64-byte vectors lane by lane, a branch per lane, which
+// made the AVX2 build 5-7 times slower (saved 1-MP state, Zen 3, 2 threads: forward 303.6 -> 61.8 ms,
+// backward 506.2 -> 76.4 ms as a Pair).
+#if defined(__AVX512F__)
+#define STEALTH_NS_NATIVE16 1
 typedef float vf16 __attribute__((vector_size(64)));
 typedef int32_t vi16 __attribute__((vector_size(64)));
 template <> inline vf16 bcast<vf16>(float a) { return vf16{a, a, a, a, a, a, a, a, a, a, a, a, a, a, a, a}; }
@@ -168,6 +204,20 @@ inline vf vlo(vf16 v) { return __builtin_shufflevector(v, v, 0, 1, 2, 3, 4, 5, 6
 inline vf vhi(vf16 v) { return __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15); }
 inline vi vlo(vi16 v) { return __builtin_shufflevector(v, v, 0, 1, 2, 3, 4, 5, 6, 7); }
 inline vi vhi(vi16 v) { return __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15); }
+inline vf16 vcvt(vi16 v) { return __builtin_convertvector(v, vf16); }
+#else
+using vf16 = Pair<vf>;
+using vi16 = Pair<vi>;
+template <> inline vf16 bcast<vf16>(float a) { return {bcast<vf>(a), bcast<vf>(a)}; }
+inline vf16 vcat(vf a, vf b) { return {a, b}; }
+inline vi16 vcat(vi a, vi b) { return {a, b}; }
+inline vf vlo(vf16 v) { return v.a; }
+inline vf vhi(vf16 v) { return v.b; }
+inline vi vlo(vi16 v) { return v.a; }
+inline vi vhi(vi16 v) { return v.b; }
+inline vf16 vcvt(vi16 v) { return {__builtin_convertvector(v.a, vf), __builtin_convertvector(v.b, vf)}; }
+#endif
+inline vf vcvt(vi v) { return __builtin_convertvector(v, vf); }
 
 // Lane masks of the per-pixel tests, 8 lanes (lmask) or 16 (lmask16).  With AVX-512VL they live in
 // mask registers (__mmask8, __mmask16), and the tests, selects and "any lane" checks are single
@@ -221,10 +271,25 @@ inline vi m_lanes(lmask m) { return m; }
 inline bool m_any(lmask m) { return vany(m); }
 inline int m_count(lmask m) { return vcount(m); }
 inline uint32_t m_bits(lmask m) {
+#if defined(__AVX__)
+    return (uint32_t)_mm256_movemask_ps((__m256)m);
+#else
     uint32_t bits = 0;
     for (int l = 0; l < VW; ++l) bits |= (uint32_t)(m[l] != 0) << l;
     return bits;
+#endif
 }
+#ifndef STEALTH_NS_NATIVE16
+// the tests and selects of a Pair, half by half
+template <class V> inline auto m_le(Pair<V> x, Pair<V> y) { return Pair<decltype(m_le(x.a, y.a))>{m_le(x.a, y.a), m_le(x.b, y.b)}; }
+template <class V> inline auto m_ge(Pair<V> x, Pair<V> y) { return Pair<decltype(m_ge(x.a, y.a))>{m_ge(x.a, y.a), m_ge(x.b, y.b)}; }
+template <class V> inline auto m_ilt(Pair<V> x, Pair<V> y) { return Pair<decltype(m_ilt(x.a, y.a))>{m_ilt(x.a, y.a), m_ilt(x.b, y.b)}; }
+template <class V> inline auto m_ile(Pair<V> x, Pair<V> y) { return Pair<decltype(m_ile(x.a, y.a))>{m_ile(x.a, y.a), m_ile(x.b, y.b)}; }
+template <class V> inline auto m_ige(Pair<V> x, Pair<V> y) { return Pair<decltype(m_ige(x.a, y.a))>{m_ige(x.a, y.a), m_ige(x.b, y.b)}; }
+template <class V> inline auto m_nonzero(Pair<V> x) { return Pair<decltype(m_nonzero(x.a))>{m_nonzero(x.a), m_nonzero(x.b)}; }
+template <class M, class V> inline Pair<V> m_sel(Pair<M> m, Pair<V> x, Pair<V> y) { return {m_sel(m.a, x.a, y.a), m_sel(m.b, x.b, y.b)}; }
+template <class M, class V> inline Pair<V> m_seli(Pair<M> m, Pair<V> x, Pair<V> y) { return {m_seli(m.a, x.a, y.a), m_seli(m.b, x.b, y.b)}; }
+#endif
 inline vi16 m_lanes16(lmask16 m) { return m; }
 inline bool m_any16(lmask16 m) { return m_any(vlo(m)) || m_any(vhi(m)); }
 inline int m_count16(lmask16 m) { return m_count(vlo(m)) + m_count(vhi(m)); }
@@ -237,31 +302,9 @@ inline lmask m_hi8(lmask16 m) { return vhi(m); }
 // second blocks 2-3, their lane masks in one 32-bit word (bits 0-15 the first vector's).  Each
 // operation is applied to both halves, lane by lane as on one block.
 #define STEALTH_NS_FOUR_BLOCKS 1
-template <class V> struct Pair {
-    V a, b;
-};
 using vf32 = Pair<vf16>;
 using vi32 = Pair<vi16>;
 typedef uint32_t lmask32;
-template <class S> constexpr bool kScalar = std::is_arithmetic_v<S>;
-#define STEALTH_NS_PAIR_OP(op)                                                                         \
-    template <class V> inline Pair<V> operator op(Pair<V> x, Pair<V> y) { return {x.a op y.a, x.b op y.b}; } \
-    template <class V, class S, std::enable_if_t<kScalar<S>, int> = 0>                                  \
-    inline Pair<V> operator op(Pair<V> x, S s) {                                                        \
-        return {x.a op s, x.b op s};                                                                    \
-    }                                                                                                   \
-    template <class V, class S, std::enable_if_t<kScalar<S>, int> = 0>                                  \
-    inline Pair<V> operator op(S s, Pair<V> y) {                                                        \
-        return {s op y.a, s op y.b};                                                                    \
-    }
-STEALTH_NS_PAIR_OP(+)
-STEALTH_NS_PAIR_OP(-)
-STEALTH_NS_PAIR_OP(*)
-STEALTH_NS_PAIR_OP(/)
-STEALTH_NS_PAIR_OP(|)
-#undef STEALTH_NS_PAIR_OP
-template <class V> inline Pair<V> operator-(Pair<V> x) { return {-x.a, -x.b}; }
-template <class V> inline Pair<V> &operator+=(Pair<V> &x, Pair<V> y) { return x = x + y; }
 inline lmask32 m_join(lmask16 lo, lmask16 hi) { return (uint32_t)lo | (uint32_t)hi << 16; }
 inline lmask16 m_lo(lmask32 m) { return (lmask16)m; }
 inline lmask16 m_hi(lmask32 m) { return (lmask16)(m >> 16); }
@@ -273,7 +316,6 @@ inline lmask32 m_ige(vi32 x, vi32 y) { return m_join(m_ige(x.a, y.a), m_ige(x.b,
 inline lmask32 m_nonzero(vi32 x) { return m_join(m_nonzero(x.a), m_nonzero(x.b)); }
 inline vf32 m_sel(lmask32 m, vf32 x, vf32 y) { return {m_sel(m_lo(m), x.a, y.a), m_sel(m_hi(m), x.b, y.b)}; }
 inline vi32 m_seli(lmask32 m, vi32 x, vi32 y) { return {m_seli(m_lo(m), x.a, y.a), m_seli(m_hi(m), x.b, y.b)}; }
-inline vf32 vmin(vf32 x, vf32 y) { return {vmin(x.a, y.a), vmin(x.b, y.b)}; }
 #endif
 
 // exp(x), lane-wise: Cody-Waite range reduction + Cephes' degree-6 polynomial
@@ -303,9 +345,10 @@ template <class F> inline F vexp(F x) {
     return tiny ? bcast<F>(0.f) : res;
 }
 
+template <class V> inline Pair<V> vexp(Pair<V> x) { return {vexp(x.a), vexp(x.b)}; }
+
 #ifdef STEALTH_NS_FOUR_BLOCKS
 template <> inline vf32 bcast<vf32>(float a) { return {bcast<vf16>(a), bcast<vf16>(a)}; }
-inline vf32 vexp(vf32 x) { return {vexp(x.a), vexp(x.b)}; }
 #endif
 
 // sigma and alpha of 8 or 16 pixels: pixel centres px, row offsets dy.
@@ -460,7 +503,7 @@ struct Block {
 // 8-lane sum as two 8-lane additions in list order (the first block's, then the second's), which
 // keeps every sum bitwise that of one block at a time.
 // x + 0.5 of tile-local columns lx in a tile starting at column x_base
-template <class F, class I> inline F pixel_centres(I lx, int x_base) { return __builtin_convertvector(lx + x_base, F) + 0.5f; }
+template <class I> inline auto pixel_centres(I lx, int x_base) { return vcvt(lx + x_base) + 0.5f; }
 template <int U> struct Blocks;
 template <> struct Blocks<1> {
     using F = vf;
@@ -475,7 +518,7 @@ template <> struct Blocks<1> {
     static I lx0(const Block *b) { return viset(b[0].lx0); }
     static I lx1(const Block *b) { return viset(b[0].lx1); }
     static F dy(const Block *b) { return vset(b[0].dy); }
-    static F px(I lx, int x_base) { return pixel_centres<F>(lx, x_base); }
+    static F px(I lx, int x_base) { return pixel_centres(lx, x_base); }
     static I bci(int32_t a) { return viset(a); }
     static void add(vf &sum, F c) { sum += c; }
     static bool any(M m) { return m_any(m); }
@@ -504,7 +547,7 @@ template <> struct Blocks<2> {
     static I lx0(const Block *b) { return vcat(viset(b[0].lx0), viset(b[1].lx0)); }
     static I lx1(const Block *b) { return vcat(viset(b[0].lx1), viset(b[1].lx1)); }
     static F dy(const Block *b) { return vcat(vset(b[0].dy), vset(b[1].dy)); }
-    static F px(I lx, int x_base) { return pixel_centres<F>(lx, x_base); }
+    static F px(I lx, int x_base) { return pixel_centres(lx, x_base); }
     static I bci(int32_t a) { return vcat(viset(a), viset(a)); }
     static void add(vf &sum, F c) { sum = (sum + vlo(c)) + vhi(c); }
     static bool any(M m) { return m_any16(m); }
