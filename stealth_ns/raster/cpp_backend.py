@@ -60,7 +60,11 @@ _CSRC = Path(__file__).resolve().parent / "csrc"
 # csrc/<name>_cpu.cpp + .h, bound in bindings.cpp
 _KERNELS = ("rasterize", "project", "ssim", "composite", "densify", "visibility", "noise")
 _SOURCES = (*(_CSRC / f"{name}_cpu.cpp" for name in _KERNELS), _CSRC / "bindings.cpp")
-_HEADERS = (*(_CSRC / f"{name}_cpu.h" for name in _KERNELS), _CSRC / "tensor_checks.h")
+_HEADERS = (
+    *(_CSRC / f"{name}_cpu.h" for name in _KERNELS),
+    _CSRC / "tensor_checks.h",
+    _CSRC / "simd_width.h",
+)
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that
 # decide which (pixel, Gaussian) pairs pass the alpha >= 1/255 test, so forward and backward could
 # disagree.  -ffp-contract=off for the same reason (no FMA contraction that may differ between the

@@ -20,6 +20,7 @@
 // Branches become selects: masked-out lanes compute and are discarded, never stored.
 
 #include "project_cpu.h"
+#include "simd_width.h"
 #include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
@@ -34,15 +35,7 @@ namespace {
 
 constexpr int64_t kGrain = 512;
 
-// 16 lanes (one register) with AVX-512, 8 (one AVX register) elsewhere: on vectors wider than the
-// target's registers GCC lowers the comparisons and selects lane by lane, a branch per lane (the AVX2
-// build's object code had 208 scalar comparisons with 16 lanes, none with 8).  The lane count does not
-// change any result.
-#if defined(__AVX512F__)
-constexpr int kLanes = 16;
-#else
-constexpr int kLanes = 8;
-#endif
+constexpr int kLanes = STEALTH_NS_FLOAT_LANES;  // one register (simd_width.h)
 typedef float vf __attribute__((vector_size(4 * kLanes)));
 typedef int32_t vi __attribute__((vector_size(4 * kLanes)));  // masks: -1 (true) / 0 per lane
 

@@ -49,6 +49,7 @@
 //   2: per-thread [C*N, 6 + D] buffers reduced at the end.
 
 #include "rasterize_cpu.h"
+#include "simd_width.h"
 #include "tensor_checks.h"
 
 #include <ATen/Parallel.h>
@@ -101,15 +102,6 @@ inline vi viset(int32_t a) { return vi{a, a, a, a, a, a, a, a}; }
 inline bool vany(vi m) {
     const vl t = (vl)m;
     return (t[0] | t[1] | t[2] | t[3]) != 0;
-}
-inline int vcount(vi m) {
-#if defined(__AVX__)
-    return __builtin_popcount(_mm256_movemask_ps((__m256)m));
-#else
-    int n = 0;
-    for (int l = 0; l < VW; ++l) n += m[l] != 0;
-    return n;
-#endif
 }
 inline float vsum(vf v) {
     // fixed order -> deterministic
@@ -189,11 +181,10 @@ template <class V> inline Pair<V> vmin(Pair<V> x, Pair<V> y) { return {vmin(x.a,
 // of dependent operations (the exp polynomial, the division of the backward), and one block at a
 // time the processor did not overlap enough of them.  1 MP, 1 thread, Zen 4: backward 132 -> 105 ms,
 // forward 76 -> 66 ms.  Every lane does the operations of an 8-wide block, so the results are bitwise
-// the same.  One 512-bit register with AVX-512.  Elsewhere a Pair of 8-lane vectors: without AVX-512
-// GCC compiles the comparisons and selects of 64-byte vectors lane by lane, a branch per lane, which
-// made the AVX2 build 5-7 times slower (saved 1-MP state, Zen 3, 2 threads: forward 303.6 -> 61.8 ms,
-// backward 506.2 -> 76.4 ms as a Pair).
-#if defined(__AVX512F__)
+// the same.  One register where it holds 16 floats (AVX-512).  Elsewhere a Pair of 8-lane vectors
+// (simd_width.h: as one 64-byte vector the AVX2 build was 5-7 times slower, saved 1-MP state, Zen 3,
+// 2 threads: forward 303.6 -> 61.8 ms, backward 506.2 -> 76.4 ms as a Pair).
+#if STEALTH_NS_FLOAT_LANES >= 16
 #define STEALTH_NS_NATIVE16 1
 typedef float vf16 __attribute__((vector_size(64)));
 typedef int32_t vi16 __attribute__((vector_size(64)));
@@ -269,7 +260,6 @@ template <class M, class V> inline V m_seli(M m, V a, V b) { return m ? a : b; }
 inline void m_stori(int32_t *p, lmask m, vi v) { vist(p, m ? v : vild(p)); }
 inline vi m_lanes(lmask m) { return m; }
 inline bool m_any(lmask m) { return vany(m); }
-inline int m_count(lmask m) { return vcount(m); }
 inline uint32_t m_bits(lmask m) {
 #if defined(__AVX__)
     return (uint32_t)_mm256_movemask_ps((__m256)m);
@@ -279,13 +269,19 @@ inline uint32_t m_bits(lmask m) {
     return bits;
 #endif
 }
+inline int m_count(lmask m) { return __builtin_popcount(m_bits(m)); }
 #ifndef STEALTH_NS_NATIVE16
 // the tests and selects of a Pair, half by half
-template <class V> inline auto m_le(Pair<V> x, Pair<V> y) { return Pair<decltype(m_le(x.a, y.a))>{m_le(x.a, y.a), m_le(x.b, y.b)}; }
-template <class V> inline auto m_ge(Pair<V> x, Pair<V> y) { return Pair<decltype(m_ge(x.a, y.a))>{m_ge(x.a, y.a), m_ge(x.b, y.b)}; }
-template <class V> inline auto m_ilt(Pair<V> x, Pair<V> y) { return Pair<decltype(m_ilt(x.a, y.a))>{m_ilt(x.a, y.a), m_ilt(x.b, y.b)}; }
-template <class V> inline auto m_ile(Pair<V> x, Pair<V> y) { return Pair<decltype(m_ile(x.a, y.a))>{m_ile(x.a, y.a), m_ile(x.b, y.b)}; }
-template <class V> inline auto m_ige(Pair<V> x, Pair<V> y) { return Pair<decltype(m_ige(x.a, y.a))>{m_ige(x.a, y.a), m_ige(x.b, y.b)}; }
+#define STEALTH_NS_PAIR_TEST(name)                                                                     \
+    template <class V> inline auto name(Pair<V> x, Pair<V> y) {                                        \
+        return Pair<decltype(name(x.a, y.a))>{name(x.a, y.a), name(x.b, y.b)};                         \
+    }
+STEALTH_NS_PAIR_TEST(m_le)
+STEALTH_NS_PAIR_TEST(m_ge)
+STEALTH_NS_PAIR_TEST(m_ilt)
+STEALTH_NS_PAIR_TEST(m_ile)
+STEALTH_NS_PAIR_TEST(m_ige)
+#undef STEALTH_NS_PAIR_TEST
 template <class V> inline auto m_nonzero(Pair<V> x) { return Pair<decltype(m_nonzero(x.a))>{m_nonzero(x.a), m_nonzero(x.b)}; }
 template <class M, class V> inline Pair<V> m_sel(Pair<M> m, Pair<V> x, Pair<V> y) { return {m_sel(m.a, x.a, y.a), m_sel(m.b, x.b, y.b)}; }
 template <class M, class V> inline Pair<V> m_seli(Pair<M> m, Pair<V> x, Pair<V> y) { return {m_seli(m.a, x.a, y.a), m_seli(m.b, x.b, y.b)}; }

@@ -13,6 +13,7 @@
 // filters in reverse), so the values are bitwise those of filtering whole maps. Each plane's SSIM is
 // summed in window order by one task: deterministic whatever the thread count.
 
+#include "simd_width.h"
 #include "ssim_cpu.h"
 #include "tensor_checks.h"
 
@@ -33,15 +34,10 @@ void check_image(const at::Tensor &t, const char *name) {
 
 // The filters below keep each output's sum in registers, VL outputs at a time, over the window's taps
 // in order (the sum starts at 0): the same additions in the same order as accumulating whole rows in
-// memory tap by tap, which took 5 loads and stores per tap and output.  VL is one register: 16 with
-// AVX-512, 8 elsewhere.  GCC compiled the 16-lane code for AVX2 badly (random 1008x756 images, Zen 3,
-// 2 threads: forward 80.0 ms, backward 56.0 ms, against 11.4 and 9.7 ms with 8 lanes); the lane count
-// changes no result.
-#if defined(__AVX512F__)
-constexpr int64_t VL = 16;
-#else
-constexpr int64_t VL = 8;
-#endif
+// memory tap by tap, which took 5 loads and stores per tap and output.  VL is one register
+// (simd_width.h; 16 lanes on AVX2 made this kernel's forward 80.0 ms and backward 56.0 ms, against
+// 11.4 and 9.7 ms with 8: random 1008x756 images, Zen 3, 2 threads).
+constexpr int64_t VL = STEALTH_NS_FLOAT_LANES;
 typedef float vec __attribute__((vector_size(4 * VL)));
 typedef float vec_u __attribute__((vector_size(4 * VL), aligned(4), __may_alias__));
 inline vec ld(const float *p) { return *reinterpret_cast<const vec_u *>(p); }
