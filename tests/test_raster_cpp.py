@@ -678,3 +678,17 @@ def test_footprint_lists_change_no_pixel_and_no_gradient(ext, C, N, W, H, tile_s
     assert torch.equal(rc, rc_n) and torch.equal(ra, ra_n)
     for name, a, b in zip(GRAD_NAMES + ["backgrounds"], g, g_n, strict=True):
         assert torch.equal(a, b), name
+
+
+def test_each_ninja_builds_in_a_directory_of_its_own(tmp_path, monkeypatch):
+    """Ninja 1.11 and 1.13 rebuild everything after each other: the venv's and the system's ninja
+    (activated venv or not) must not share a build directory."""
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "ninja").write_text("#!/bin/sh\n")
+        (tmp_path / name / "ninja").chmod(0o755)
+    monkeypatch.setenv("PATH", str(tmp_path / "a"))
+    first = cpp_backend.build_directory()
+    assert cpp_backend.build_directory() == first
+    monkeypatch.setenv("PATH", str(tmp_path / "b"))
+    assert cpp_backend.build_directory() != first

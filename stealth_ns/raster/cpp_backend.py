@@ -8,8 +8,9 @@ directory:
 * ``$STEALTH_NS_CACHE/torch_ext/<key>`` when ``STEALTH_NS_CACHE`` is set,
 * ``~/.cache/stealth_ns/torch_ext/<key>`` otherwise,
 
-where ``<key>`` hashes the sources, the compiler flags, the torch and Python versions and the CPU
-model/flags, so a cache shared between machines never hands out a binary built for another CPU.
+where ``<key>`` hashes the sources, the compiler flags, the torch and Python versions, the CPU
+model/flags, so a cache shared between machines never hands out a binary built for another CPU, and
+which ``ninja`` builds it (:func:`_ninja_program`).
 
 Set ``STEALTH_NS_DISABLE_CPP=1`` to force the pure-PyTorch fallback: :func:`load_extension` then
 returns ``None`` and :func:`compile_error` says why.
@@ -28,6 +29,7 @@ from __future__ import annotations
 import hashlib
 import os
 import platform
+import shutil
 import sys
 import tempfile
 import threading
@@ -108,6 +110,17 @@ def _cpu_signature() -> str:
     return "|".join(parts)
 
 
+def _ninja_program() -> str:
+    """The ``ninja`` torch will run (the first on ``PATH``), resolved, or ``""``.
+
+    Ninja versions read each other's build logs as foreign (1.11 and 1.13 differ), and torch runs
+    whichever is first on ``PATH``: the venv's from pip when it is activated, the system's when it
+    is not. Sharing one build directory, each rebuilt every kernel after the other had run.
+    """
+    found = shutil.which("ninja")
+    return os.path.realpath(found) if found else ""
+
+
 def _cache_key(cflags: list[str] | None = None) -> str:
     h = hashlib.sha256()
     for path in (*_SOURCES, *_HEADERS):
@@ -116,6 +129,7 @@ def _cache_key(cflags: list[str] | None = None) -> str:
     h.update(torch.__version__.encode())
     h.update(sys.version.encode())
     h.update(_cpu_signature().encode())
+    h.update(_ninja_program().encode())
     return h.hexdigest()[:16]
 
 
