@@ -12,6 +12,9 @@ expected to have g++ and ninja.
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import sys
 
 import pytest
 import torch
@@ -583,9 +586,7 @@ def test_isect_tiles_depth_order_edge_cases(ext):
 
 def test_compile_failure_is_reported(tmp_path):
     """A broken compiler gives load_extension() -> None with the reason, not an exception."""
-    import os
     import subprocess
-    import sys
 
     code = (
         "from stealth_ns.raster import cpp_backend as cb\n"
@@ -680,13 +681,32 @@ def test_footprint_lists_change_no_pixel_and_no_gradient(ext, C, N, W, H, tile_s
         assert torch.equal(a, b), name
 
 
-def test_each_ninja_builds_in_a_directory_of_its_own(tmp_path, monkeypatch):
-    """Ninja 1.11 and 1.13 rebuild everything after each other: the venv's and the system's ninja
-    (activated venv or not) must not share a build directory."""
-    for name in ("a", "b"):
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "ninja").write_text("#!/bin/sh\n")
-        (tmp_path / name / "ninja").chmod(0o755)
+def _fake_ninjas(root, *dirs):
+    for name in dirs:
+        (root / name).mkdir()
+        (root / name / "ninja").write_text("#!/bin/sh\n")
+        (root / name / "ninja").chmod(0o755)
+
+
+def test_the_ninja_beside_python_builds_whatever_path_holds(tmp_path, monkeypatch):
+    """torch runs ``ninja`` by name: the build must not switch ninjas (1.11 and 1.13 rebuild everything
+    after each other) when the venv is activated or not, nor find none without a system ninja."""
+    _fake_ninjas(tmp_path, "venv", "a", "b")
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "venv" / "python"))
+    monkeypatch.setenv("PATH", str(tmp_path / "a"))
+    first = cpp_backend.build_directory()
+    monkeypatch.setenv("PATH", str(tmp_path / "b"))
+    assert cpp_backend.build_directory() == first
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    assert cpp_backend.build_directory() == first
+    with cpp_backend._first_on_path(cpp_backend._ninja_program()):
+        assert shutil.which("ninja") == str(tmp_path / "venv" / "ninja")  # what torch will run
+    assert os.environ["PATH"] == str(tmp_path / "empty")
+
+
+def test_without_one_beside_python_each_ninja_on_path_builds_apart(tmp_path, monkeypatch):
+    _fake_ninjas(tmp_path, "a", "b")
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "python"))
     monkeypatch.setenv("PATH", str(tmp_path / "a"))
     first = cpp_backend.build_directory()
     assert cpp_backend.build_directory() == first

@@ -10,7 +10,7 @@ directory:
 
 where ``<key>`` hashes the sources, the compiler flags, the torch and Python versions, the CPU
 model/flags, so a cache shared between machines never hands out a binary built for another CPU, and
-which ``ninja`` builds it (:func:`_ninja_program`).
+the ``ninja`` that builds it (:func:`_ninja_program`: the venv's, else the first on ``PATH``).
 
 Set ``STEALTH_NS_DISABLE_CPP=1`` to force the pure-PyTorch fallback: :func:`load_extension` then
 returns ``None`` and :func:`compile_error` says why.
@@ -26,6 +26,7 @@ background composite (``composite.py``), camera visibility counts and the attack
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import platform
@@ -34,6 +35,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -111,14 +113,36 @@ def _cpu_signature() -> str:
 
 
 def _ninja_program() -> str:
-    """The ``ninja`` torch will run (the first on ``PATH``), resolved, or ``""``.
+    """The ``ninja`` that builds the extension, resolved: the one beside this Python (the venv's, which
+    nerfstudio requires) when there is one, else the first on ``PATH``; ``""`` if none.
 
-    Ninja versions read each other's build logs as foreign (1.11 and 1.13 differ), and torch runs
-    whichever is first on ``PATH``: the venv's from pip when it is activated, the system's when it
-    is not. Sharing one build directory, each rebuilt every kernel after the other had run.
+    torch runs ``ninja`` by name, so left to ``PATH`` it ran the venv's (1.13) when the venv was
+    activated and the system's (1.11) when not, or none at all on a machine without a system ninja,
+    and then no kernels were built. Ninja 1.11 and 1.13 read each other's build logs as foreign:
+    alternating, each rebuilt every kernel (65-100 s on 2 cores).
     """
+    beside = Path(sys.executable).parent / "ninja"
+    if beside.is_file() and os.access(beside, os.X_OK):
+        return str(beside.resolve())
     found = shutil.which("ninja")
     return os.path.realpath(found) if found else ""
+
+
+@contextlib.contextmanager
+def _first_on_path(program: str) -> Iterator[None]:
+    """``PATH`` with ``program``'s directory first for the duration (torch runs ``ninja`` by name)."""
+    if not program:
+        yield
+        return
+    saved = os.environ.get("PATH")
+    os.environ["PATH"] = os.pathsep.join(p for p in (os.path.dirname(program), saved) if p)
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop("PATH", None)
+        else:
+            os.environ["PATH"] = saved
 
 
 def _cache_key(cflags: list[str] | None = None) -> str:
@@ -169,16 +193,17 @@ def load_extension() -> Any | None:
                     build_dir = Path(tempfile.gettempdir()) / "stealth_ns" / "torch_ext" / build_dir.name
                     build_dir.mkdir(parents=True, exist_ok=True)
                 t0 = time.perf_counter()
-                _module = cpp_extension.load(
-                    # distinct names: a failed import of one variant must not shadow the other
-                    name=EXTENSION_NAME if extra else f"{EXTENSION_NAME}_generic",
-                    sources=[str(path) for path in _SOURCES],
-                    extra_cflags=cflags,
-                    extra_ldflags=list(_LDFLAGS),
-                    build_directory=str(build_dir),
-                    with_cuda=False,
-                    verbose=os.environ.get("STEALTH_NS_VERBOSE_BUILD", "") not in ("", "0"),
-                )
+                with _first_on_path(_ninja_program()):
+                    _module = cpp_extension.load(
+                        # distinct names: a failed import of one variant must not shadow the other
+                        name=EXTENSION_NAME if extra else f"{EXTENSION_NAME}_generic",
+                        sources=[str(path) for path in _SOURCES],
+                        extra_cflags=cflags,
+                        extra_ldflags=list(_LDFLAGS),
+                        build_directory=str(build_dir),
+                        with_cuda=False,
+                        verbose=os.environ.get("STEALTH_NS_VERBOSE_BUILD", "") not in ("", "0"),
+                    )
                 _compile_seconds = time.perf_counter() - t0
                 _error = None
                 break
