@@ -712,3 +712,6 @@ def test_without_one_beside_python_each_ninja_on_path_builds_apart(tmp_path, mon
     assert cpp_backend.build_directory() == first
     monkeypatch.setenv("PATH", str(tmp_path / "b"))
     assert cpp_backend.build_directory() != first
+    monkeypatch.setattr(sys, "executable", "")  # embedded Python: not a ./ninja of the working directory
+    monkeypatch.chdir(tmp_path / "a")
+    assert cpp_backend._ninja_program() == str(tmp_path / "b" / "ninja")

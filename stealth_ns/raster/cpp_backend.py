@@ -121,8 +121,8 @@ def _ninja_program() -> str:
     and then no kernels were built. Ninja 1.11 and 1.13 read each other's build logs as foreign:
     alternating, each rebuilt every kernel (65-100 s on 2 cores).
     """
-    beside = Path(sys.executable).parent / "ninja"
-    if beside.is_file() and os.access(beside, os.X_OK):
+    beside = Path(sys.executable).parent / "ninja" if sys.executable else None  # "" when embedded
+    if beside is not None and beside.is_file() and os.access(beside, os.X_OK):
         return str(beside.resolve())
     found = shutil.which("ninja")
     return os.path.realpath(found) if found else ""
