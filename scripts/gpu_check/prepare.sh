@@ -18,7 +18,8 @@ NEEDED="nerfstudio gsplat tyro docstring_parser typeguard nerfacc viser msgspec 
 pyquaternion fpsample pathos ppft dill multiprocess pytorch-msssim tensorly splines torch_fidelity plyfile"
 PLATFORMS=(--platform manylinux2014_x86_64 --platform manylinux1_x86_64)
 for n in $(seq 5 39); do PLATFORMS+=(--platform "manylinux_2_${n}_x86_64"); done
-rm -rf .whl .gpu
+# only what this script makes: a .gpu/gsplat_cuda.so from an earlier call stays
+rm -rf .whl .gpu/shim .gpu/capture
 mkdir -p .whl .gpu/shim/open3d
 for name in $NEEDED; do
     version=$("$PY" -c "import importlib.metadata as m; print(m.version('$name'))")
