@@ -184,6 +184,9 @@ def test_view_aware_takes_the_unseen_stretch_in_front_of_the_camera():
     )
     # the poison Gaussian stays one pixel footprint wide at its depth
     assert float(out.scales[0]) == pytest.approx(0.5 * z / 10.0, rel=1e-3)
+    # the view counts are timed as a part of the ray search (two searches and the statistics)
+    assert 0 < out.timings["visibility_s"] <= out.timings["ray_search_s"]
+    assert out.timings["cpu_kernels_load_s"] >= 0
 
 
 def test_view_aware_falls_back_to_the_paper_range_when_every_point_is_seen():

@@ -34,6 +34,26 @@ def test_phases_are_timed_only_while_active():
     assert timer.current == {}
 
 
+def test_a_timer_with_sync_waits_for_the_device_at_both_ends_of_a_phase():
+    """On CUDA the bench gives the timer torch.cuda.synchronize: a phase's time must include the
+    queued work its sync waits for, at its start (earlier work, not charged to it) and its end."""
+    timer, calls = StepTimer(), []
+    timer.active = True
+
+    def sync() -> None:
+        calls.append(len(calls))
+        time.sleep(0.01 if len(calls) == 2 else 0.0)  # the phase's own GPU work, waited for at its end
+
+    timer.sync = sync
+    with timer.phase("gpu"):
+        pass
+    assert calls == [0, 1] and timer.current["gpu"] >= 0.01
+    timer.sync = None
+    with timer.phase("cpu"):
+        pass
+    assert len(calls) == 2 and timer.current["cpu"] < 0.01
+
+
 def test_module_phase_is_a_no_op_by_default():
     with phase("anything"):
         pass  # the process's timer is inactive outside a benchmark

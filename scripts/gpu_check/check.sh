@@ -1,13 +1,25 @@
 #!/usr/bin/env bash
 # The GPU check, run ON the device machine from the repository root (see README.md beside this):
-# installs the carried wheels, builds gsplat's CUDA kernels, runs make test-gpu's tests, then trains
-# the carried capture for ITERS steps three times (stealth-splat with its attack, without it, stock
-# splatfacto) and evaluates the attacked run. Everything is logged to $OUT/check.log as it happens.
+# installs the carried wheels, builds gsplat's CUDA kernels, then, in this order and each only while
+# LIMIT seconds (from the start of this script) leave it time enough: make test-gpu's tests; given
+# .gpu/bench, `bench train` of a whole stealth-splat-lite run on it with the attack and without;
+# ITERS steps of the carried capture three times (stealth-splat with its attack, without it, stock
+# splatfacto) and ns-eval of the attacked run. Everything is logged to $OUT/check.log as it happens.
 exec > >(tee "$OUT/check.log") 2>&1
 export PYTHONUNBUFFERED=1 TORCH_CUDA_ARCH_LIST="${TORCH_CUDA_ARCH_LIST:-9.0}" MAX_JOBS="${MAX_JOBS:-24}"
 ITERS="${ITERS:-2000}"
+LIMIT="${LIMIT:-560}"  # keep under the device call's timeout_s
+BENCH_STEPS="${BENCH_STEPS:-2999}"  # bench train's timed steps (2999 after step 0: a whole lite run)
+TESTS="${TESTS:-1}"  # 0: no tests (a second call on the warm machine, for the stages skipped)
 T0=$(date +%s)
 t() { echo "=== [$(($(date +%s) - T0)) s] $*"; }
+# fits SECONDS: is there time for a stage expected to take SECONDS? Says so when not.
+fits() {
+    local left=$((LIMIT - $(date +%s) + T0))
+    [ "$left" -ge "$1" ] && return 0
+    echo "=== skipped (needs ~$1 s, $left s left of LIMIT=$LIMIT): $2"
+    return 1
+}
 
 t start
 nvidia-smi -L
@@ -47,9 +59,24 @@ t gsplat-ready
 
 # make test-gpu's tests. pytest's own script, not python -m pytest: the source tree must not shadow
 # the installed package (stealth_ns.method_configs exists only installed).
-timeout 300 "$BIN/pytest" -m cuda tests/test_cuda.py -p no:cacheprovider -q -rs --durations=5 2>&1 |
-    grep -v -i warn | tail -25
-t tests-done
+if [ "$TESTS" != 0 ] && fits 130 "make test-gpu's tests"; then
+    # the whole output in tests.log; warnings off so that the summary line stays in the tail
+    timeout 300 "$BIN/pytest" -m cuda tests/test_cuda.py -p no:cacheprovider -p no:warnings -q -rfEs \
+        --durations=5 >"$OUT/tests.log" 2>&1
+    echo "pytest exit status $?"
+    tail -15 "$OUT/tests.log"
+    t tests-done
+fi
+
+# bench train's whole stealth-splat-lite run (3000 steps, each timed) on the carried scene, attack on, off
+if [ -d .gpu/bench ]; then
+    for attack in attack no-attack; do
+        fits 100 "bench train --$attack on .gpu/bench" || continue
+        timeout 240 "$BIN/stealth-ns" bench train --data .gpu/bench --warmup 0 --steps "$BENCH_STEPS" \
+            "--$attack" --json "$OUT/bench_$attack.json" 2>&1 | grep -v -E "step/s|^\s*$" | tail -25
+        t "bench-$attack-done"
+    done
+fi
 
 run() {  # NAME METHOD ARGS...: one training of ITERS steps on the carried capture
     local name=$1 method=$2
@@ -65,8 +92,8 @@ run() {  # NAME METHOD ARGS...: one training of ITERS steps on the carried captu
     grep -E "train_iteration|get_train_loss_dict" "/tmp/$name.log"
     [ $rc -ne 0 ] && tail -20 "/tmp/$name.log"
 }
-run attack stealth-splat
-run clean stealth-splat --pipeline.attack.enabled False
+fits 70 "$ITERS-step stealth-splat with its attack" && run attack stealth-splat
+fits 70 "$ITERS-step stealth-splat without its attack" && run clean stealth-splat --pipeline.attack.enabled False
 # stock splatfacto builds LPIPS at start-up and the machine is offline: an untrained AlexNet in a
 # TORCH_HOME of its own lets it start (its LPIPS means nothing; its training is unaffected)
 python3 -c "
@@ -75,7 +102,7 @@ w = torchvision.models.AlexNet_Weights.IMAGENET1K_V1
 os.makedirs('/tmp/th/hub/checkpoints', exist_ok=True)
 torch.save(torchvision.models.alexnet().state_dict(), '/tmp/th/hub/checkpoints/' + os.path.basename(w.url))
 "
-TORCH_HOME=/tmp/th run splatfacto splatfacto
+fits 70 "$ITERS-step splatfacto" && TORCH_HOME=/tmp/th run splatfacto splatfacto
 t trainings-done
 python3 - <<'PY'
 import glob, json, torch
@@ -88,6 +115,8 @@ for path in glob.glob("/tmp/runs/gpu/*/*/attack/attack.json"):
     record = json.load(open(path))
     print("injection", record["injected_at_step"], record["n_poison_gaussians"], record["timings_s"])
 PY
-timeout 120 "$BIN/ns-eval" --load-config /tmp/runs/gpu/stealth-splat/attack/config.yml \
-    --output-path "$OUT/eval_attack.json" >/tmp/eval.log 2>&1 || tail -5 /tmp/eval.log
+if [ -f /tmp/runs/gpu/stealth-splat/attack/config.yml ] && fits 30 "ns-eval of the attacked run"; then
+    timeout 120 "$BIN/ns-eval" --load-config /tmp/runs/gpu/stealth-splat/attack/config.yml \
+        --output-path "$OUT/eval_attack.json" >/tmp/eval.log 2>&1 || tail -5 /tmp/eval.log
+fi
 t done

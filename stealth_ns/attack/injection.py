@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -29,6 +29,7 @@ from stealth_ns.attack.density import DensityGrid, gaussian_kde_grid, voxel_dens
 from stealth_ns.attack.ray_search import RaySearchResult, min_density_points, pixel_rays, zdepth_to_ray_t
 from stealth_ns.attack.record import Injection, PoisonView
 from stealth_ns.attack.visibility import SURFACE_ALPHA, CameraDepths, count_seeing_cameras
+from stealth_ns.raster.cpp_backend import load_extension
 
 # Pixels whose rendered opacity is below SURFACE_ALPHA see no reconstructed surface (sky, empty
 # background): their ray is searched up to where it leaves the density grid instead.
@@ -119,12 +120,38 @@ CAMERA_PLACEMENTS = ("view-aware", "surface")
 SURFACE_OFFSET = 0.01
 
 
-def _seen_penalty(cfg: AttackConfig, innocent: CameraDepths | None, support: CameraDepths | None = None):
+class _TimedCounts:
+    """:func:`count_seeing_cameras`, with the seconds spent in it summed (the visibility counts'
+    share of the ray search, kept in the attack record's timings as ``visibility_s``). ``load``:
+    load the CPU kernels it runs on first, timed apart (a CUDA training has not loaded them)."""
+
+    def __init__(self, load: bool) -> None:
+        start = time.perf_counter()
+        if load:
+            load_extension()
+        self.load_seconds = time.perf_counter() - start
+        self.seconds = 0.0
+
+    def __call__(self, points: Tensor, cameras: CameraDepths, margin: float) -> Tensor:
+        start = time.perf_counter()
+        try:
+            return count_seeing_cameras(points, cameras, margin=margin)
+        finally:
+            self.seconds += time.perf_counter() - start
+
+
+def _seen_penalty(
+    cfg: AttackConfig,
+    innocent: CameraDepths | None,
+    support: CameraDepths | None = None,
+    count: Callable[..., Tensor] = count_seeing_cameras,
+):
     """The ray search's per-sample cost (None: the KDE density alone, ``kde`` and ``surface``).
 
     ``view-aware``: the number of innocent cameras that see the sample, plus, with support views
     (``support_views``), the number of support cameras that do not: the sample that every support
-    camera and the fewest others see comes first."""
+    camera and the fewest others see comes first. ``count`` counts them (``count_seeing_cameras``'s
+    contract)."""
     innocent = innocent if innocent is not None and len(innocent) else None
     support = support if support is not None and len(support) else None
     if cfg.placement != "view-aware" or (innocent is None and support is None):
@@ -133,9 +160,9 @@ def _seen_penalty(cfg: AttackConfig, innocent: CameraDepths | None, support: Cam
     def penalty(pts: Tensor) -> Tensor:
         cost = torch.zeros(pts.shape[:-1], dtype=torch.int32, device=pts.device)
         if innocent is not None:
-            cost += count_seeing_cameras(pts, innocent, margin=cfg.visibility_margin)
+            cost += count(pts, innocent, margin=cfg.visibility_margin)
         if support is not None:
-            cost += len(support) - count_seeing_cameras(pts, support, margin=cfg.visibility_margin)
+            cost += len(support) - count(pts, support, margin=cfg.visibility_margin)
         return cost
 
     return penalty
@@ -188,9 +215,10 @@ def place_poison(
     """
     if cfg.placement in CAMERA_PLACEMENTS and innocent is None:
         raise ValueError(f"{cfg.placement} placement needs the innocent cameras' rendered depth")
+    count = _TimedCounts(load=cfg.placement in CAMERA_PLACEMENTS or bool(supports))
     t0 = time.perf_counter()
     grid, kde = build_density(means, opacities, cfg)
-    timings = {"density_kde_s": time.perf_counter() - t0}
+    timings = {"cpu_kernels_load_s": count.load_seconds, "density_kde_s": time.perf_counter() - t0}
     lower = torch.as_tensor(grid.origin, dtype=torch.float32)
     upper = torch.as_tensor(grid.upper, dtype=torch.float32)
     out_means, out_colors, out_scales = [], [], []
@@ -201,7 +229,7 @@ def place_poison(
     centre = torch.as_tensor((grid.origin + grid.upper) / 2, dtype=torch.float32)
     t1 = time.perf_counter()
     for i, (view, depth, alpha) in enumerate(zip(views, depths, alphas, strict=True)):
-        penalty = _seen_penalty(cfg, innocent, supports[i] if supports else None)
+        penalty = _seen_penalty(cfg, innocent, supports[i] if supports else None, count)
         rows, cols, origins, dirs, cos, t_max = _illusion_rays(view, depth, alpha, lower, upper)
         scene_depth = median_scene_depth(
             depth, alpha, fallback=float(torch.linalg.norm(centre - view.c2w[:3, 3]))
@@ -241,13 +269,14 @@ def place_poison(
         invalid[view.name] = int((~valid).sum())
         near[view.name] = t_min
         if innocent is not None and len(innocent) and bool(valid.any()):
-            count = count_seeing_cameras(pts, innocent, margin=cfg.visibility_margin)
-            seen[view.name] = float(count.float().mean())
-            unseen_share[view.name] = float((count == 0).float().mean())
+            seeing = count(pts, innocent, margin=cfg.visibility_margin)
+            seen[view.name] = float(seeing.float().mean())
+            unseen_share[view.name] = float((seeing == 0).float().mean())
         if supports and len(supports[i]) and bool(valid.any()):
-            count = count_seeing_cameras(pts, supports[i], margin=cfg.visibility_margin)
-            support_seen[view.name] = float(count.float().mean())
+            seeing = count(pts, supports[i], margin=cfg.visibility_margin)
+            support_seen[view.name] = float(seeing.float().mean())
     timings["ray_search_s"] = time.perf_counter() - t1
+    timings["visibility_s"] = count.seconds  # a part of ray_search_s
     return PoisonPlacement(
         means=torch.cat(out_means) if out_means else torch.zeros(0, 3),
         colors=torch.cat(out_colors) if out_colors else torch.zeros(0, 3),

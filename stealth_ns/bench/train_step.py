@@ -8,13 +8,15 @@ scene (default: the generated ``orbit`` scene, seed 0) in this process with nerf
 data                        the datamanager's ``next_train`` (image, attack target, noise)
 projection+SH               EWA projection and SH colours (forward)
 tile sort                   tile intersection and depth sort
-rasterize forward           the rasterize-to-pixels kernel (forward)
+rasterize forward           the rasterize-to-pixels kernel (forward); with gsplat (CUDA) its
+                            whole rasterization: projection, tile sort and kernel
 forward: other              the rest of the model's ``get_outputs`` (activations, background)
 loss                        the model's loss and metrics dicts (L1 + SSIM, PSNR)
 pipeline: other             the rest of the pipeline's ``get_train_loss_dict``
 backward: rasterize         the rasterize-to-pixels backward kernel
 backward: projection+SH     the compiled projection and SH backward kernels
-backward: other             the rest of ``loss.backward()`` (loss and SSIM, activations)
+backward: other             the rest of ``loss.backward()`` (loss and SSIM, activations; with
+                            gsplat all of its backward)
 optimizer                   the optimizers' and schedulers' steps
 densification               gsplat's strategy before and after the backward pass
 callbacks/logging           everything else of the step: the other training callbacks (the
@@ -23,6 +25,8 @@ callbacks/logging           everything else of the step: the other training call
 
 The phases add up to the step's wall-clock time (``step``). Each figure is the median over the
 timed steps (the mean is kept beside it: evaluation and checkpoint steps are rare but long).
+On CUDA every phase waits for the GPU at both ends (``StepTimer.sync``), so each is charged its own
+kernels and the steps lose the overlap of CPU and GPU work they have in ``ns-train``.
 """
 
 from __future__ import annotations
@@ -121,7 +125,8 @@ class TrainBenchResult:
             f"stealth-ns bench train: {self.method} on {self.scene}, backend {self.backend}, "
             f"{self.threads} thread(s); {self.steps} steps timed after {self.warmup}",
             f"  median step {self.median_step_ms:.1f} ms (mean {self.mean_step_ms:.1f} ms, "
-            f"{sum(self.step_ms) / 1000:.1f} s in all); {self.gaussians} Gaussians, {self.pairs} tile pairs",
+            f"{sum(self.step_ms) / 1000:.1f} s in all); {self.gaussians} Gaussians, {self.pairs} tile pairs"
+            + ("; CUDA synchronised at each phase's ends" if self.backend == "gsplat" else ""),
             f"  {'phase':<25}{'median ms':>11}{'mean ms':>10}{'share':>8}",
         ]
         total = sum(self.phases_mean_ms.values()) or 1.0
@@ -183,13 +188,13 @@ class _StepBoundaries:
 
     def __init__(self, timer: StepTimer, warmup: int, steps: int, bar: Any) -> None:
         self.timer, self.warmup, self.steps, self.bar = timer, warmup, steps, bar
-        self.last = time.perf_counter()
+        self.last = timer.now()
         self.rss: dict[str, float] = {}
 
     def __call__(self, step: int) -> None:
         timer = self.timer
         if timer.active:
-            timer.current["step"] = time.perf_counter() - self.last
+            timer.current["step"] = timer.now() - self.last
             timer.end_step()
         timer.current = {}
         timer.active = self.warmup <= step < self.warmup + self.steps
@@ -197,7 +202,7 @@ class _StepBoundaries:
             self.rss["start"] = _rss_mb()
         if step == self.warmup + self.steps:
             self.rss["end"] = _rss_mb()
-        self.last = time.perf_counter()
+        self.last = timer.now()
         self.bar.update(1)
 
 
@@ -293,6 +298,8 @@ def run_train_benchmark(
         trainer = setup_trainer(config)
         _instrument(trainer, TIMER)
         TIMER.steps = []
+        on_cuda = trainer.pipeline.model.device.type == "cuda"
+        TIMER.sync = torch.cuda.synchronize if on_cuda else None
         with tqdm(total=config.max_num_iterations, desc="bench train", unit="step") as bar:
             boundaries = _StepBoundaries(TIMER, warmup, steps, bar)
             trainer.callbacks.insert(
@@ -301,7 +308,7 @@ def run_train_benchmark(
             try:
                 trainer.train()
             finally:
-                TIMER.active = False
+                TIMER.active, TIMER.sync = False, None
                 _close_event_writers()  # before the temporary folder is removed under them
         model = trainer.pipeline.model
         backend = model.rasterizer_backend

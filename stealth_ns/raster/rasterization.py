@@ -120,29 +120,30 @@ def rasterization(
     if name == "gsplat":
         from gsplat.rendering import rasterization as gsplat_rasterization
 
-        return gsplat_rasterization(
-            means=means,
-            quats=quats,
-            scales=scales,
-            opacities=opacities,
-            colors=join_sh(colors),
-            viewmats=viewmats,
-            Ks=Ks,
-            width=width,
-            height=height,
-            near_plane=near_plane,
-            far_plane=far_plane,
-            radius_clip=radius_clip,
-            eps2d=eps2d,
-            sh_degree=sh_degree,
-            packed=packed,
-            tile_size=tile_size,
-            backgrounds=backgrounds,
-            render_mode=render_mode,
-            absgrad=absgrad,
-            rasterize_mode=rasterize_mode,
-            **gsplat_kwargs,
-        )
+        with phase("rasterize forward"):  # gsplat's projection, tile sort and kernel are one call
+            return gsplat_rasterization(
+                means=means,
+                quats=quats,
+                scales=scales,
+                opacities=opacities,
+                colors=join_sh(colors),
+                viewmats=viewmats,
+                Ks=Ks,
+                width=width,
+                height=height,
+                near_plane=near_plane,
+                far_plane=far_plane,
+                radius_clip=radius_clip,
+                eps2d=eps2d,
+                sh_degree=sh_degree,
+                packed=packed,
+                tile_size=tile_size,
+                backgrounds=backgrounds,
+                render_mode=render_mode,
+                absgrad=absgrad,
+                rasterize_mode=rasterize_mode,
+                **gsplat_kwargs,
+            )
     if absgrad:
         raise ValueError("absgrad is only computed by gsplat's CUDA backward; use absgrad=False on CPU")
     if rasterize_mode != "classic":
