@@ -122,17 +122,20 @@ SURFACE_OFFSET = 0.01
 
 class _TimedCounts:
     """:func:`count_seeing_cameras`, with the seconds spent in it summed (the visibility counts'
-    share of the ray search, kept in the attack record's timings as ``visibility_s``). ``load``:
-    load the CPU kernels it runs on first, timed apart (a CUDA training has not loaded them)."""
+    share of the ray search, kept in the attack record's timings as ``visibility_s``). The first call
+    loads the CPU kernels the counts run on, timed apart as ``load_seconds`` (a CUDA training has not
+    loaded them; on the CPU the renders have)."""
 
-    def __init__(self, load: bool) -> None:
-        start = time.perf_counter()
-        if load:
-            load_extension()
-        self.load_seconds = time.perf_counter() - start
+    def __init__(self) -> None:
         self.seconds = 0.0
+        self.load_seconds = 0.0
+        self._loaded = False
 
     def __call__(self, points: Tensor, cameras: CameraDepths, margin: float) -> Tensor:
+        if not self._loaded:
+            start = time.perf_counter()
+            load_extension()
+            self.load_seconds, self._loaded = time.perf_counter() - start, True
         start = time.perf_counter()
         try:
             return count_seeing_cameras(points, cameras, margin=margin)
@@ -215,10 +218,10 @@ def place_poison(
     """
     if cfg.placement in CAMERA_PLACEMENTS and innocent is None:
         raise ValueError(f"{cfg.placement} placement needs the innocent cameras' rendered depth")
-    count = _TimedCounts(load=cfg.placement in CAMERA_PLACEMENTS or bool(supports))
+    count = _TimedCounts()
     t0 = time.perf_counter()
     grid, kde = build_density(means, opacities, cfg)
-    timings = {"cpu_kernels_load_s": count.load_seconds, "density_kde_s": time.perf_counter() - t0}
+    timings = {"density_kde_s": time.perf_counter() - t0}
     lower = torch.as_tensor(grid.origin, dtype=torch.float32)
     upper = torch.as_tensor(grid.upper, dtype=torch.float32)
     out_means, out_colors, out_scales = [], [], []
@@ -276,7 +279,7 @@ def place_poison(
             seeing = count(pts, supports[i], margin=cfg.visibility_margin)
             support_seen[view.name] = float(seeing.float().mean())
     timings["ray_search_s"] = time.perf_counter() - t1
-    timings["visibility_s"] = count.seconds  # a part of ray_search_s
+    timings.update(visibility_s=count.seconds, cpu_kernels_load_s=count.load_seconds)  # parts of ray_search_s
     return PoisonPlacement(
         means=torch.cat(out_means) if out_means else torch.zeros(0, 3),
         colors=torch.cat(out_colors) if out_colors else torch.zeros(0, 3),
