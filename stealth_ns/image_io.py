@@ -28,6 +28,7 @@ __all__ = [
     "image_info",
     "image_size",
     "read_image",
+    "encode_png",
     "save_png",
     "split_alpha",
     "to_float32",
@@ -191,15 +192,30 @@ def save_png(path: str | Path, image: np.ndarray | torch.Tensor) -> Path:
     """
     import imageio.v3 as iio
 
-    arr = _numpy(image)
-    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3, 4)):
-        raise ValueError(f"save_png expects [H, W], [H, W, 1], [H, W, 3] or [H, W, 4], got {arr.shape}")
-    if arr.ndim == 3 and arr.shape[2] == 1:
-        arr = arr[..., 0]
+    arr = _png_pixels(image, "save_png")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    iio.imwrite(path, np.ascontiguousarray(to_uint8(arr)), plugin=PLUGIN, extension=".png")
+    iio.imwrite(path, arr, plugin=PLUGIN, extension=".png")
     return path
+
+
+def encode_png(image: np.ndarray | torch.Tensor, compress_level: int = 6) -> bytes:
+    """The 8-bit PNG file :func:`save_png` writes, in memory, at zlib level ``compress_level`` (0-9:
+    faster to larger files; Pillow's default is 6). The pixels do not depend on the level."""
+    import imageio.v3 as iio
+
+    return iio.imwrite("<bytes>", _png_pixels(image, "encode_png"), plugin=PLUGIN, extension=".png",
+                       compress_level=int(compress_level))  # fmt: skip
+
+
+def _png_pixels(image: np.ndarray | torch.Tensor, caller: str) -> np.ndarray:
+    """``image`` as the contiguous uint8 ``[H, W]``, ``[H, W, 3]`` or ``[H, W, 4]`` a PNG holds."""
+    arr = _numpy(image)
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3, 4)):
+        raise ValueError(f"{caller} expects [H, W], [H, W, 1], [H, W, 3] or [H, W, 4], got {arr.shape}")
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    return np.ascontiguousarray(to_uint8(arr))
 
 
 def save_image(path: str | Path, image: np.ndarray | torch.Tensor) -> Path:

@@ -1,18 +1,21 @@
 """nerfstudio's trainer with a checked resume: ``--load-dir`` / ``--load-checkpoint`` give one line, not a
 traceback, for a missing folder, a missing step, a stray file in ``nerfstudio_models/`` or a truncated
 checkpoint (:mod:`stealth_ns.checkpoints`). Whether the checkpoint belongs to this run -- its scene, its
-attack -- the pipeline checks when it loads the state (``StealthPipeline.load_pipeline``).
+attack -- the pipeline checks when it loads the state (``StealthPipeline.load_pipeline``). Its
+TensorBoard images are encoded faster (:mod:`stealth_ns.tensorboard_images`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from stealth_ns.checkpoints import TRAINING_KEYS, find_checkpoint, read_checkpoint
 from stealth_ns.errors import StealthNSError, fail
+from stealth_ns.tensorboard_images import use_fast_png
 
 
 @dataclass
@@ -24,6 +27,10 @@ class StealthTrainerConfig(TrainerConfig):
 
 class StealthTrainer(Trainer):
     """``Trainer`` with :meth:`_load_checkpoint` reading through :mod:`stealth_ns.checkpoints`."""
+
+    def setup(self, test_mode: Literal["test", "val", "inference"] = "val") -> None:
+        super().setup(test_mode)
+        use_fast_png()
 
     def _load_checkpoint(self) -> None:
         config = self.config

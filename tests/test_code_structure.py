@@ -53,7 +53,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "defences.posthoc", "defences.pruned_run",
         ),
     ),
-    ("training parts", ("datamanager", "viewer")),
+    ("training parts", ("datamanager", "viewer", "tensorboard_images")),
     ("pipeline and methods", ("pipeline", "trainer", "method_configs")),
     ("poisoning", ("poisoning",)),
     ("trained runs", ("runs",)),

@@ -85,6 +85,20 @@ def test_gsplat_matches_compiled_cpu_backend(sh_degree):
         assert cosine > 0.999, (name, float(cosine))
 
 
+def test_view_noise_drawn_on_the_gpu_is_the_cpus():
+    """The view noise of a GPU-cached image is drawn on the GPU, bitwise what the CPU draws."""
+    from stealth_ns.attack.normal_draw import noisy_uint8, normal_deviates, normal_deviates_reference
+
+    for count, key in ((1, 0), (70_001, 2**63 - 1), (756 * 1008 * 3, 987654321)):
+        got = normal_deviates((count,), key, "cuda")
+        assert got.device.type == "cuda"
+        assert got.cpu().numpy().tobytes() == normal_deviates_reference(count, key).tobytes(), (count, key)
+    image = torch.randint(0, 256, (97, 131, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(0))
+    for sigma in (0.5, 12.3, 300.0):
+        on_gpu = noisy_uint8(image.cuda(), sigma, 42)
+        assert on_gpu.device.type == "cuda" and torch.equal(on_gpu.cpu(), noisy_uint8(image, sigma, 42))
+
+
 @pytest.mark.slow
 def test_short_poisoned_run_on_the_gpu(tiny_orbit_scene, tmp_path):
     """stealth-splat-lite with the attack on a CUDA device: gsplat renders, the poison is injected,

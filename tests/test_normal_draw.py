@@ -79,6 +79,26 @@ def test_compiled_noisy_uint8_equals_the_reference():
     )
 
 
+def test_torch_operations_equal_the_reference_bitwise():
+    # the implementation a GPU-cached image is noised with, run here on the CPU: the same operations
+    for count in (0, 1, 2, 513, 70_001):
+        for key in (0, 1, 2**63 - 1, 987654321):
+            got = normal_draw._deviates_on(count, key, torch.device("cpu")).numpy()
+            assert got.tobytes() == normal_deviates_reference(count, key).tobytes(), (count, key)
+    g = torch.Generator().manual_seed(1)
+    image = torch.randint(0, 256, (61, 83, 3), dtype=torch.uint8, generator=g)
+    image[:3], image[-3:] = 0, 255
+    for sigma in (0.5, 12.3, 300.0):
+        got = normal_draw._noisy_uint8_on(image, sigma, 42)
+        assert got.dtype == torch.uint8
+        assert np.array_equal(got.numpy(), noisy_uint8_reference(image.numpy(), sigma, 42))
+    strided = image.permute(1, 0, 2)
+    assert np.array_equal(
+        normal_draw._noisy_uint8_on(strided, 9.0, 3).numpy(),
+        noisy_uint8_reference(strided.contiguous().numpy(), 9.0, 3),
+    )
+
+
 def test_noisy_uint8_reference_rounds_half_to_even_and_clips():
     z = normal_deviates_reference(6, 11)
     image = np.array([0, 10, 100, 200, 250, 255], dtype=np.uint8)

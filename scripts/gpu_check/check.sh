@@ -27,6 +27,9 @@ python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir .whl/
 export PYTHONPATH="$PWD/.gpu/shim${PYTHONPATH:+:$PYTHONPATH}"
 BIN=$(dirname "$(python3 -c 'import sys; print(sys.executable)')")
 python3 -c "import sys, torch, numpy; print(sys.version.split()[0], torch.__version__, numpy.__version__, torch.cuda.get_device_name())"
+# the CPU side (the injection's ray search runs there): cores, those usable, torch's threads, any quota
+python3 -c "import os, torch; print('cpus', os.cpu_count(), 'usable', len(os.sched_getaffinity(0)), 'torch threads', torch.get_num_threads())"
+echo "cgroup cpu.max: $(cat /sys/fs/cgroup/cpu.max 2>/dev/null || echo none)"
 
 SITE=$(python3 -c "import importlib.util, os; print(os.path.dirname(importlib.util.find_spec('gsplat').origin))")
 if [ -f .gpu/gsplat_cuda.so ]; then  # a previous call's build (same image): no 200 s rebuild

@@ -28,7 +28,7 @@ from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid, gaussian_kde_grid, voxel_density
 from stealth_ns.attack.ray_search import RaySearchResult, min_density_points, pixel_rays, zdepth_to_ray_t
 from stealth_ns.attack.record import Injection, PoisonView
-from stealth_ns.attack.visibility import SURFACE_ALPHA, CameraDepths, count_seeing_cameras
+from stealth_ns.attack.visibility import SURFACE_ALPHA, CameraDepths, SeenPenalty, count_seeing_cameras
 from stealth_ns.raster.cpp_backend import load_extension
 
 # Pixels whose rendered opacity is below SURFACE_ALPHA see no reconstructed surface (sky, empty
@@ -121,21 +121,14 @@ SURFACE_OFFSET = 0.01
 
 
 class _TimedCounts:
-    """:func:`count_seeing_cameras`, with the seconds spent in it summed (the visibility counts'
-    share of the ray search, kept in the attack record's timings as ``visibility_s``). The first call
-    loads the CPU kernels the counts run on, timed apart as ``load_seconds`` (a CUDA training has not
-    loaded them; on the CPU the renders have)."""
+    """:func:`count_seeing_cameras`, with the seconds spent in it summed (kept in the attack record's
+    timings as ``visibility_s``: the counts the ray search's torch path asks for and those of the
+    placement's figures; the compiled search counts inside its own pass)."""
 
     def __init__(self) -> None:
         self.seconds = 0.0
-        self.load_seconds = 0.0
-        self._loaded = False
 
     def __call__(self, points: Tensor, cameras: CameraDepths, margin: float) -> Tensor:
-        if not self._loaded:
-            start = time.perf_counter()
-            load_extension()
-            self.load_seconds, self._loaded = time.perf_counter() - start, True
         start = time.perf_counter()
         try:
             return count_seeing_cameras(points, cameras, margin=margin)
@@ -148,27 +141,17 @@ def _seen_penalty(
     innocent: CameraDepths | None,
     support: CameraDepths | None = None,
     count: Callable[..., Tensor] = count_seeing_cameras,
-):
+) -> SeenPenalty | None:
     """The ray search's per-sample cost (None: the KDE density alone, ``kde`` and ``surface``).
 
     ``view-aware``: the number of innocent cameras that see the sample, plus, with support views
-    (``support_views``), the number of support cameras that do not: the sample that every support
-    camera and the fewest others see comes first. ``count`` counts them (``count_seeing_cameras``'s
-    contract)."""
+    (``support_views``), the number of support cameras that do not (:class:`SeenPenalty`). ``count``
+    counts them where the search calls the penalty (``count_seeing_cameras``'s contract)."""
     innocent = innocent if innocent is not None and len(innocent) else None
     support = support if support is not None and len(support) else None
     if cfg.placement != "view-aware" or (innocent is None and support is None):
         return None
-
-    def penalty(pts: Tensor) -> Tensor:
-        cost = torch.zeros(pts.shape[:-1], dtype=torch.int32, device=pts.device)
-        if innocent is not None:
-            cost += count(pts, innocent, margin=cfg.visibility_margin)
-        if support is not None:
-            cost += len(support) - count(pts, support, margin=cfg.visibility_margin)
-        return cost
-
-    return penalty
+    return SeenPenalty(innocent, support, cfg.visibility_margin, count)
 
 
 def on_surface(origins: Tensor, dirs: Tensor, t_max: Tensor, t_min: Tensor) -> RaySearchResult:
@@ -231,6 +214,8 @@ def place_poison(
     support_seen: dict[str, float] = {}
     centre = torch.as_tensor((grid.origin + grid.upper) / 2, dtype=torch.float32)
     t1 = time.perf_counter()
+    load_extension()  # the search's and the counts' kernels: loaded by the renders on the CPU, not on CUDA
+    timings["cpu_kernels_load_s"] = time.perf_counter() - t1
     for i, (view, depth, alpha) in enumerate(zip(views, depths, alphas, strict=True)):
         penalty = _seen_penalty(cfg, innocent, supports[i] if supports else None, count)
         rows, cols, origins, dirs, cos, t_max = _illusion_rays(view, depth, alpha, lower, upper)
@@ -278,8 +263,7 @@ def place_poison(
         if supports and len(supports[i]) and bool(valid.any()):
             seeing = count(pts, supports[i], margin=cfg.visibility_margin)
             support_seen[view.name] = float(seeing.float().mean())
-    timings["ray_search_s"] = time.perf_counter() - t1
-    timings.update(visibility_s=count.seconds, cpu_kernels_load_s=count.load_seconds)  # parts of ray_search_s
+    timings.update(ray_search_s=time.perf_counter() - t1, visibility_s=count.seconds)
     return PoisonPlacement(
         means=torch.cat(out_means) if out_means else torch.zeros(0, 3),
         colors=torch.cat(out_colors) if out_colors else torch.zeros(0, 3),

@@ -91,8 +91,9 @@ def noisy_image(image: ImageT, sigma_255: float, seed: int, view_index: int, ste
     """``clip(I + eta)``, ``eta ~ N(0, sigma^2)`` i.i.d. per pixel and channel, out of place.
 
     The noise is stream :func:`noise_seed` ``(seed, view_index, step)`` of
-    :mod:`stealth_ns.attack.normal_draw` over the flattened image, drawn on the CPU, so it is
-    reproducible for a given triple on any device, and independent across views and steps.
+    :mod:`stealth_ns.attack.normal_draw` over the flattened image, drawn on the image's device with
+    the same bits on every device, so it is reproducible for a given triple anywhere, and independent
+    across views and steps.
 
     Args:
         image: ``[H, W, C]`` (any shape works) torch tensor or numpy array, either uint8 in 0..255 or float
@@ -122,7 +123,7 @@ def noisy_image(image: ImageT, sigma_255: float, seed: int, view_index: int, ste
     elif img.dtype == torch.uint8:
         out = noisy_uint8(img, sigma, gen_seed)
     else:
-        noise = normal_deviates(tuple(img.shape), gen_seed).to(img.device)
+        noise = normal_deviates(tuple(img.shape), gen_seed, img.device)
         work = torch.promote_types(img.dtype, torch.float32)
         out = (img.to(work) + (sigma / 255.0) * noise.to(work)).clamp_(0.0, 1.0).to(img.dtype)
     return out.numpy() if is_numpy else out  # type: ignore[return-value]

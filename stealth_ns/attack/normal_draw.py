@@ -16,6 +16,12 @@ tests compare bitwise::
 24-bit uniforms as in torch's own CPU ``normal_``, so ``|z| <= sqrt(48 ln 2) = 5.77``. ``ln``, ``sin`` and
 ``cos`` are Cephes' single-precision polynomials (max error ~1e-7 relative). A stream of ``count``
 deviates is the first ``count`` of this sequence, whatever the shape it is given.
+
+Three implementations of one contract: the numpy reference, the compiled CPU kernel, and the same
+operations as torch tensor operations (:func:`_pairs_on`), which draw the noise of an image cached on
+a CUDA device where it lives instead of sending it to the CPU and back every step. Each torch operation is
+one IEEE-rounded float32 operation (no fused multiply-add spans two of them), so all three give the
+same bits on any device.
 """
 
 from __future__ import annotations
@@ -99,6 +105,79 @@ def _pairs(key: int, n_pairs: int) -> tuple[np.ndarray, np.ndarray]:
     return r * cos_t, r * sin_t
 
 
+def _as_int64(value: int) -> int:
+    """The int64 with the bits of the uint64 ``value``."""
+    return value - (1 << 64) if value >= 1 << 63 else value
+
+
+def _srl(z: torch.Tensor, shift: int) -> torch.Tensor:
+    """Logical right shift of int64 bit patterns (torch's ``>>`` on int64 is arithmetic)."""
+    return (z >> shift) & ((1 << (64 - shift)) - 1)
+
+
+def _pairs_on(key: int, n_pairs: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`_pairs` as torch operations on ``device`` (uint64 arithmetic as int64 wrapping the same
+    way), bitwise the same values."""
+    import torch
+
+    j = torch.arange(1, n_pairs + 1, dtype=torch.int64, device=device)  # j + 1
+    z = j * _as_int64(0x9E3779B97F4A7C15) + key
+    z = (z ^ _srl(z, 30)) * _as_int64(0xBF58476D1CE4E5B9)
+    z = (z ^ _srl(z, 27)) * _as_int64(0x94D049BB133111EB)
+    h = z ^ _srl(z, 31)
+    del j, z
+    f = (_srl(h, 40) + 1).to(torch.float32)  # 1 .. 2^24, exact
+    bits = f.view(torch.int32)  # positive: >> is logical
+    m = ((bits & 0x7FFFFF) | 0x3F800000).view(torch.float32)
+    big = m > float(_F(np.sqrt(2.0)))
+    m = torch.where(big, m * 0.5, m)
+    e = ((bits >> 23) - 127 + big.to(torch.int32) - 24).to(torch.float32)
+    x = m - 1.0
+    zz = x * x
+    p = torch.full_like(x, float(_F(_LOG[0])))
+    for coefficient in _LOG[1:]:
+        p = p * x + float(_F(coefficient))
+    y = p * x * zz
+    y = y + e * float(_F(-2.12194440e-4))
+    y = y + -0.5 * zz
+    ln_u1 = (x + y) + e * float(_F(0.693359375))
+    # torch's float32 sqrt is not correctly rounded on every device (on the CPU, torch 2.14 with AVX2:
+    # 15% of values 1 ulp off); the float64 root rounded to float32 is, as numpy's float32 sqrt
+    r = torch.sqrt(torch.clamp_min(-2.0 * ln_u1, 0.0).double()).float()
+    n2 = (_srl(h, 8) & 0xFFFFFF).to(torch.int32)
+    q = (n2 + (1 << 21)) >> 22
+    a = (n2 - (q << 22)).to(torch.float32) * 2.0**-24 * float(_F(2 * np.pi))
+    zz = a * a
+    s = torch.full_like(a, float(_F(_SIN[0])))
+    for coefficient in _SIN[1:]:
+        s = s * zz + float(_F(coefficient))
+    s = s * zz * a + a
+    c = torch.full_like(a, float(_F(_COS[0])))
+    for coefficient in _COS[1:]:
+        c = c * zz + float(_F(coefficient))
+    c = c * zz * zz - 0.5 * zz + 1.0
+    k = q & 3
+    cos_t = torch.where(k == 0, c, torch.where(k == 1, -s, torch.where(k == 2, -c, s)))
+    sin_t = torch.where(k == 0, s, torch.where(k == 1, c, torch.where(k == 2, -s, -c)))
+    return r * cos_t, r * sin_t
+
+
+def _deviates_on(count: int, key: int, device: torch.device) -> torch.Tensor:
+    """The first ``count`` deviates of stream ``key`` as float32 ``[count]``, drawn on ``device``."""
+    import torch
+
+    z0, z1 = _pairs_on(key, (count + 1) // 2, device)
+    return torch.stack([z0, z1], dim=-1).reshape(-1)[:count]
+
+
+def _noisy_uint8_on(image: torch.Tensor, sigma: float, key: int) -> torch.Tensor:
+    """:func:`noisy_uint8_reference` as torch operations where ``image`` (uint8) is."""
+    import torch
+
+    z = _deviates_on(image.numel(), key, image.device).reshape(image.shape)
+    return torch.round(image.to(torch.float32) + float(_F(sigma)) * z).clamp_(0, 255).to(torch.uint8)
+
+
 def normal_deviates_reference(count: int, key: int) -> np.ndarray:
     """The first ``count`` deviates of stream ``key`` (0 <= key < 2^63) as float32 ``[count]`` (numpy)."""
     z0, z1 = _pairs(key, (count + 1) // 2)
@@ -121,26 +200,33 @@ def _extension() -> Any:
     return load_extension()
 
 
-def normal_deviates(shape: tuple[int, ...], key: int) -> torch.Tensor:
-    """Stream ``key``'s first ``prod(shape)`` deviates as a float32 CPU tensor of ``shape``: compiled and
-    parallel when the extension is built, the numpy reference otherwise (the same values)."""
+def normal_deviates(shape: tuple[int, ...], key: int, device: Any = "cpu") -> torch.Tensor:
+    """Stream ``key``'s first ``prod(shape)`` deviates as a float32 tensor of ``shape`` on ``device``. On a
+    CUDA device drawn there (:func:`_pairs_on`); elsewhere on the CPU, compiled and parallel when the
+    extension is built, the numpy reference otherwise. The same values everywhere."""
     import torch
 
+    device = torch.device(device)
     count = int(np.prod(shape, dtype=np.int64))
+    if device.type == "cuda":
+        return _deviates_on(count, key, device).reshape(shape)
     ext = _extension()
     flat = (
         ext.normal_draw(count, key)
         if ext is not None
         else torch.from_numpy(normal_deviates_reference(count, key))
     )
-    return flat.reshape(shape)
+    return flat.reshape(shape).to(device)
 
 
 def noisy_uint8(image: torch.Tensor, sigma: float, key: int) -> torch.Tensor:
-    """:func:`noisy_uint8_reference` of a uint8 tensor on any device, computed on the CPU (one compiled
-    pass when the extension is built) and returned on the image's device."""
+    """:func:`noisy_uint8_reference` of a uint8 tensor, returned on the image's device: on a CUDA device
+    torch operations there; elsewhere on the CPU, one compiled pass when the extension is built (other
+    accelerators may lack the float64 the torch path takes its square root in)."""
     import torch
 
+    if image.device.type == "cuda":
+        return _noisy_uint8_on(image, sigma, key)
     ext = _extension()
     cpu = image.cpu().contiguous()
     out = (

@@ -23,12 +23,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Generic, Literal, NamedTuple, TypeVar
+from typing import Any, Generic, Literal, NamedTuple, TypeVar
 
 import numpy as np
 import torch
 
 from stealth_ns.attack.density import DensityGrid, _sample_torch
+from stealth_ns.attack.visibility import NEAR, CameraDepths, SeenPenalty
 
 __all__ = ["PixelRays", "RaySearchResult", "pixel_rays", "zdepth_to_ray_t", "min_density_points"]
 
@@ -194,6 +195,97 @@ def _pick_index(f: torch.Tensor, tie_break: str, tie_tol: float) -> torch.Tensor
     return torch.div(first + end, 2, rounding_mode="floor")
 
 
+class _Rays(NamedTuple):
+    """The valid rays of a search (``[V, 3]``, ``[V]``) and the samples' fractions ``[n]`` of
+    ``[t_min, t_max]``."""
+
+    origins: torch.Tensor
+    directions: torch.Tensor
+    t_min: torch.Tensor
+    t_max: torch.Tensor
+    frac: torch.Tensor
+
+
+class _Rule(NamedTuple):
+    """How a search chooses (see :func:`min_density_points`)."""
+
+    tie_break: str
+    tie_tol: float
+    mode: str
+    outside: float
+    penalty: Callable[[torch.Tensor], torch.Tensor] | None
+
+
+#: The compiled search's codes of the tie-break rules.
+_TIE_BREAK_CODES = {"nearest-surface": 0, "first": 1, "middle": 2}
+
+
+def _extension() -> Any:
+    """The compiled module, or None where it is unavailable."""
+    from stealth_ns.raster.cpp_backend import load_extension
+
+    return load_extension()
+
+
+def _search_torch(
+    density: DensityGrid, rays: _Rays, rule: _Rule, max_samples_per_chunk: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per ray: the chosen sample's index ``[V]``, its density and its penalty (the readable path)."""
+    tie_break, tie_tol, mode, outside, penalty = rule
+    o = rays.origins
+    values = torch.from_numpy(density.values).to(o.device)
+    origin = torch.as_tensor(density.origin, dtype=o.dtype, device=o.device)
+    chunk = max(1, max_samples_per_chunk // rays.frac.numel())
+    ks, fs, pens = [], [], []
+    for start in range(0, o.shape[0], chunk):
+        c = slice(start, start + chunk)
+        tn, tf = rays.t_min[c], rays.t_max[c]
+        ts = tn[:, None] + (tf - tn)[:, None] * rays.frac[None, :]  # [C, n]
+        pts = o[c, None, :] + ts[..., None] * rays.directions[c, None, :]  # [C, n, 3]
+        f = _sample_torch(values, origin, density.voxel_size, pts, mode, outside)  # [C, n]
+        pen = penalty(pts).to(o.dtype) if penalty is not None else torch.zeros_like(f)
+        del pts
+        k = _pick_index(2.0 * pen + f, tie_break, tie_tol)
+        ks.append(k)
+        fs.append(f.gather(1, k[:, None])[:, 0])
+        pens.append(pen.gather(1, k[:, None])[:, 0])
+    return torch.cat(ks), torch.cat(fs), torch.cat(pens)
+
+
+def _search_compiled(
+    density: DensityGrid, rays: _Rays, rule: _Rule
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:
+    """:func:`_search_torch`'s result from one compiled pass (``raster/csrc/ray_search_cpu.cpp``), or
+    None where that does not apply: float32 rays on the CPU, nearest-voxel lookup, no penalty or a
+    :class:`SeenPenalty`, the extension built."""
+    tie_break, tie_tol, mode, outside, penalty = rule
+    if rays.origins.device.type != "cpu" or rays.origins.dtype != torch.float32 or mode != "nearest":
+        return None
+    if penalty is not None and not isinstance(penalty, SeenPenalty):
+        return None
+    ext = _extension()
+    if ext is None:
+        return None
+    none = CameraDepths(torch.zeros(0, 4, 4), torch.zeros(0, 3, 3), [], [])
+    margin = penalty.margin if penalty is not None else 0.0
+    cameras = []  # innocent, then support: viewmats, Ks, depth bounds
+    for group in (penalty.innocent, penalty.support) if penalty is not None else (None, None):
+        group = group if group is not None else none
+        cameras += [group.viewmats.float().contiguous(), group.Ks.float().contiguous()]
+        cameras.append(group.depth_bounds(margin))
+    return ext.ray_search(
+        *(t.contiguous() for t in rays),
+        torch.from_numpy(density.values).contiguous(),
+        torch.as_tensor(density.origin, dtype=torch.float32),
+        density.voxel_size,
+        outside,
+        *cameras,
+        NEAR,
+        _TIE_BREAK_CODES[tie_break],
+        tie_tol,
+    )
+
+
 def min_density_points(
     density: DensityGrid,
     origins: ArrayT,
@@ -233,6 +325,10 @@ def min_density_points(
     ``(penalty, density)`` lexicographically -- the fewest-penalty samples first, the density (a
     normalised KDE, in [0, 1]) among them, the tie-break rule last -- by minimising
     ``2 * penalty + density``.
+
+    On the CPU, for float32 rays with ``mode="nearest"`` and no penalty or a :class:`SeenPenalty`, one
+    compiled pass does the search (``raster/csrc/ray_search_cpu.cpp``, with the same result); the torch
+    code below is its reference and the path everywhere else.
 
     Chunking: rays are processed in chunks of ``max(1, max_samples_per_chunk // n_samples)`` rays so that
     at most ``max_samples_per_chunk`` sample points (``[chunk, n, 3]``) exist at a time; results do not
@@ -292,28 +388,21 @@ def min_density_points(
 
     vidx = torch.nonzero(valid).flatten()
     if vidx.numel():
-        values = torch.from_numpy(density.values).to(device)
-        origin = torch.as_tensor(density.origin, dtype=dtype, device=device)
         frac = (
             torch.linspace(0.0, 1.0, n, dtype=dtype, device=device)
             if n > 1
             else torch.zeros(1, dtype=dtype, device=device)
         )
-        chunk = max(1, int(max_samples_per_chunk) // n)
-        for start in range(0, vidx.numel(), chunk):
-            sel = vidx[start : start + chunk]
-            o_c, d_c, tn_c, tf_c = o[sel], d[sel], tn[sel], tf[sel]
-            ts = tn_c[:, None] + (tf_c - tn_c)[:, None] * frac[None, :]  # [C, n]
-            pts = o_c[:, None, :] + ts[..., None] * d_c[:, None, :]  # [C, n, 3]
-            f = _sample_torch(values, origin, density.voxel_size, pts, mode, float(outside))  # [C, n]
-            pen = penalty(pts).to(dtype) if penalty is not None else torch.zeros_like(f)
-            del pts
-            k = _pick_index(2.0 * pen + f, tie_break, tie_tol)
-            t_best = ts.gather(1, k[:, None])[:, 0]
-            t_out[sel] = t_best
-            f_out[sel] = f.gather(1, k[:, None])[:, 0]
-            pen_out[sel] = pen.gather(1, k[:, None])[:, 0]
-            points[sel] = o_c + t_best[:, None] * d_c
+        rays = _Rays(o[vidx], d[vidx], tn[vidx], tf[vidx], frac)
+        rule = _Rule(tie_break, tie_tol, mode, float(outside), penalty)
+        found = _search_compiled(density, rays, rule)
+        if found is None:
+            found = _search_torch(density, rays, rule, int(max_samples_per_chunk))
+        k, f_k, pen_k = found
+        f_out[vidx], pen_out[vidx] = f_k.to(dtype), pen_k.to(dtype)
+        t_best = rays.t_min + (rays.t_max - rays.t_min) * frac[k]  # the chosen sample's t, as sampled
+        t_out[vidx] = t_best
+        points[vidx] = rays.origins + t_best[:, None] * rays.directions
 
     if is_numpy:
         return RaySearchResult(points.numpy(), t_out.numpy(), f_out.numpy(), valid.numpy(), pen_out.numpy())  # type: ignore[arg-type]

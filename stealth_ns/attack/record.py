@@ -88,7 +88,8 @@ class Injection:
     innocent_views_seeing_poison: dict[str, float]  # all but kde: mean innocent views seeing a poison
     poison_unseen_fraction: dict[str, float]  # all but kde: share of poison no innocent view sees
     density_grid: dict[str, Any]  # shape [3], voxel_size, origin [3]
-    # density_kde_s, ray_search_s (of it: cpu_kernels_load_s, visibility_s the view counts), total_s
+    # density_kde_s, ray_search_s (of it: cpu_kernels_load_s, visibility_s the view counts made
+    # outside the compiled search), total_s
     timings_s: dict[str, float]
     # support_views > 0: poisoned view -> its support views, and how many see a poison Gaussian (mean)
     support_views: dict[str, list[str]] = field(default_factory=dict)

@@ -18,6 +18,7 @@ down +Z, +Y down; gsplat's), ``Ks`` ``[J, 3, 3]`` pixel intrinsics with pixel ce
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import torch
@@ -25,6 +26,8 @@ from torch import Tensor
 
 #: Rendered opacity below which a pixel shows no surface: nothing there occludes a point.
 SURFACE_ALPHA = 0.5
+#: Camera-space depth (scene units) a point must exceed to be seen.
+NEAR = 0.01
 
 
 @dataclass(frozen=True)
@@ -71,7 +74,7 @@ class CameraDepths:
 
 
 def count_seeing_cameras(
-    points: Tensor, cameras: CameraDepths, margin: float = 0.05, near: float = 0.01
+    points: Tensor, cameras: CameraDepths, margin: float = 0.05, near: float = NEAR
 ) -> Tensor:
     """Number of cameras that see each point (:func:`count_seeing_cameras_reference`'s contract),
     by the compiled kernel on the CPU (``raster/csrc/visibility_cpu.cpp``: each point visits every
@@ -93,7 +96,7 @@ def count_seeing_cameras(
 
 
 def count_seeing_cameras_reference(
-    points: Tensor, cameras: CameraDepths, margin: float = 0.05, near: float = 0.01
+    points: Tensor, cameras: CameraDepths, margin: float = 0.05, near: float = NEAR
 ) -> Tensor:
     """Number of cameras that see each point: the readable reference.
 
@@ -134,3 +137,25 @@ def count_seeing_cameras_reference(
         unoccluded = ~shows_surface | (z <= surface * (1.0 + margin))
         counts += (inside & unoccluded).to(torch.int32)
     return counts.reshape(shape)
+
+
+@dataclass(frozen=True)
+class SeenPenalty:
+    """The view-aware search's per-sample cost: the ``innocent`` cameras that see a point, plus the
+    ``support`` cameras that do not, so that the sample every support camera and the fewest others
+    see comes first (either may be None). Called on points ``[..., 3]`` it gives int32 ``[...]``
+    through ``count`` (:func:`count_seeing_cameras`'s contract); the compiled ray search reads its
+    cameras and counts them itself, the same way."""
+
+    innocent: CameraDepths | None
+    support: CameraDepths | None
+    margin: float
+    count: Callable[..., Tensor] = count_seeing_cameras
+
+    def __call__(self, pts: Tensor) -> Tensor:
+        cost = torch.zeros(pts.shape[:-1], dtype=torch.int32, device=pts.device)
+        if self.innocent is not None:
+            cost += self.count(pts, self.innocent, margin=self.margin)
+        if self.support is not None:
+            cost += len(self.support) - self.count(pts, self.support, margin=self.margin)
+        return cost

@@ -20,7 +20,8 @@ the C++ file for the exact semantics), its ``isect_tiles`` + ``isect_offset_enco
 projection and SH (forward and backward; ``projection.py`` is their torch reference); the same
 module holds the training loss's SSIM (``stealth_ns/ssim.py``; pytorch_msssim is its reference), the
 densification statistics (``stealth_ns/densification.py``; its torch code is their reference), the
-background composite (``composite.py``), camera visibility counts and the attack's view noise
+background composite (``composite.py``), camera visibility counts, the injection's ray search
+(``stealth_ns/attack/ray_search.py``; its torch code is the reference) and the attack's view noise
 (``stealth_ns/attack/normal_draw.py``; its numpy code is their reference).
 """
 
@@ -62,11 +63,12 @@ __all__ = [
 EXTENSION_NAME = "stealth_ns_raster_cpu"
 _CSRC = Path(__file__).resolve().parent / "csrc"
 # csrc/<name>_cpu.cpp + .h, bound in bindings.cpp
-_KERNELS = ("rasterize", "project", "ssim", "composite", "densify", "visibility", "noise")
+_KERNELS = ("rasterize", "project", "ssim", "composite", "densify", "visibility", "ray_search", "noise")
 _SOURCES = (*(_CSRC / f"{name}_cpu.cpp" for name in _KERNELS), _CSRC / "bindings.cpp")
 _HEADERS = (
     *(_CSRC / f"{name}_cpu.h" for name in _KERNELS),
     _CSRC / "tensor_checks.h",
+    _CSRC / "camera_views.h",
     _CSRC / "simd_width.h",
 )
 # -O3 without -ffast-math: fast-math would let the compiler reorder the float expressions that

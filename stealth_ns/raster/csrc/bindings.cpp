@@ -7,6 +7,7 @@
 #include "noise_cpu.h"
 #include "project_cpu.h"
 #include "rasterize_cpu.h"
+#include "ray_search_cpu.h"
 #include "ssim_cpu.h"
 #include "visibility_cpu.h"
 #include <ATen/ops/empty.h>
@@ -16,7 +17,7 @@
 namespace py = pybind11;
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, background composite, densification statistics, camera visibility, view noise";
+    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, background composite, densification statistics, camera visibility, the injection's ray search, view noise";
     m.def("rasterize_fwd", &stealth_ns::rasterize_fwd,
           py::arg("means2d"), py::arg("conics"), py::arg("colors"),
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
@@ -54,6 +55,11 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
     m.def("count_seeing", &stealth_ns::count_seeing, py::arg("points"), py::arg("viewmats"), py::arg("Ks"),
           py::arg("bounds"), py::arg("near_plane"));
+    m.def("ray_search", &stealth_ns::ray_search, py::arg("origins"), py::arg("dirs"), py::arg("t_min"),
+          py::arg("t_max"), py::arg("frac"), py::arg("values"), py::arg("grid_origin"), py::arg("voxel_size"),
+          py::arg("outside"), py::arg("viewmats"), py::arg("Ks"), py::arg("bounds"), py::arg("support_viewmats"),
+          py::arg("support_Ks"), py::arg("support_bounds"), py::arg("near_plane"), py::arg("tie_break"),
+          py::arg("tie_tol"));
     m.def("normal_draw", &stealth_ns::normal_draw, py::arg("count"), py::arg("key"));
     m.def("noisy_u8", &stealth_ns::noisy_u8, py::arg("image"), py::arg("sigma"), py::arg("key"));
 }
