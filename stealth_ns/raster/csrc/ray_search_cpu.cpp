@@ -5,7 +5,7 @@
 // ends with all threads waiting for the slowest, and with one of this VM's two cores busy elsewhere
 // the fox capture's search took 6.25 s instead of 0.75 s.  Here the search is one parallel loop.
 //
-// The result is the torch version's exactly (tests/test_attack_math.py): every float expression is
+// The result is the torch version's exactly (tests/test_placement.py): every float expression is
 // its, in its order, rounded to float32 (-ffp-contract=off):
 //   t      = t_min + (t_max - t_min) * frac[k]          (frac: torch.linspace, passed in)
 //   point  = origin + t * dir
@@ -89,8 +89,8 @@ std::vector<at::Tensor> ray_search(
 ) {
     for (const at::Tensor *t : {&origins, &dirs, &t_min, &t_max, &frac, &values, &grid_origin})
         check_cpu_f32(*t, "ray search input");
-    const int64_t M = origins.size(0), n = frac.numel();
     TORCH_CHECK(origins.dim() == 2 && origins.size(1) == 3 && dirs.sizes() == origins.sizes(), "rays must be [M, 3]");
+    const int64_t M = origins.size(0), n = frac.numel();
     TORCH_CHECK(t_min.numel() == M && t_max.numel() == M, "t_min and t_max must be [M]");
     TORCH_CHECK(n >= 1 && values.dim() == 3 && grid_origin.numel() == 3, "bad samples or grid");
     TORCH_CHECK(tie_break >= kNearestSurface && tie_break <= kMiddle, "bad tie-break");
