@@ -125,7 +125,6 @@ class BenchTrain:
     """False: time the clean run (--pipeline.attack.enabled False) instead."""
 
     def main(self) -> None:
-        from stealth_ns.bench.train_step import run_train_benchmark
         from stealth_ns.scenes import PRESETS, parse_resolution
 
         if self.json is not None:
@@ -138,6 +137,8 @@ class BenchTrain:
             raise StealthNSError(f"--preset {self.preset!r}: choose one of {', '.join(PRESETS)}")
         if self.resolution is not None:
             parse_resolution(self.resolution)  # a malformed one before the scene is made
+        from stealth_ns.bench.train_step import run_train_benchmark  # torch and nerfstudio: seconds
+
         result = run_train_benchmark(
             data=self.data,
             method=self.method,
@@ -423,12 +424,16 @@ class PoisonDataset:
     )
 
     def main(self) -> None:
-        from stealth_ns.poisoning.data_only import poison_dataset
+        from stealth_ns.attack.validation import validate_attack_config
 
         if not self.attack.enabled:
             raise StealthNSError(
                 "--enabled False: poison-dataset always writes the attack (copy the folder instead)"
             )
+        with _attack_flags_as_given():
+            validate_attack_config(self.attack)  # at once, not after torch and nerfstudio load (~10 s)
+        from stealth_ns.poisoning.data_only import poison_dataset
+
         # --seed (the attack's) also seeds the set-up, as ns-train's --machine.seed would
         with _attack_flags_as_given():
             summary = poison_dataset(
@@ -469,7 +474,6 @@ class IpaPoison:
 
     def main(self) -> None:
         from stealth_ns.attack.validation import validate_attack_config
-        from stealth_ns.poisoning.ipa_splat import ipa_poison
 
         attack = AttackConfig(
             illusion=self.illusion,
@@ -487,6 +491,9 @@ class IpaPoison:
             validate_attack_config(attack)
         if self.iterations is not None and self.iterations < 1:
             raise StealthNSError(f"--iterations must be a positive integer, got {self.iterations}")
+        self.ipa.validate()  # these at once, not after torch and nerfstudio load (~10 s)
+        from stealth_ns.poisoning.ipa_splat import ipa_poison
+
         with _attack_flags_as_given():
             summary = ipa_poison(
                 self.data,

@@ -1,13 +1,17 @@
-"""Shared fixtures: console scripts of this venv and small generated scenes (built once per session)."""
+"""Shared fixtures: console scripts of this venv and small generated scenes (built once per session;
+under pytest-xdist, once for all of the session's workers)."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from filelock import FileLock
 
 BIN = Path(sys.executable).parent
 
@@ -25,14 +29,33 @@ def run_cli(*args: str, timeout: float = 600, check: bool = True) -> subprocess.
     return proc
 
 
+def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
+    """The folder ``name`` filled by ``build(folder)`` once per test session. Under pytest-xdist the
+    workers share it: the first to ask builds it under a file lock, the others wait and reuse it (the
+    shared folder's users must only read it)."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # the session's folder, above each worker's own
+    out = base / f"shared-{name}"
+    done = out / ".built"
+    with FileLock(f"{out}.lock"):
+        if not done.exists():
+            shutil.rmtree(out, ignore_errors=True)
+            out.mkdir(parents=True)
+            build(out)
+            done.touch()
+    return out
+
+
 @pytest.fixture(scope="session")
 def tiny_orbit_scene(tmp_path_factory) -> Path:
     """16 views at 64x48 of the orbit preset (2 held out)."""
-    out = tmp_path_factory.mktemp("scenes") / "orbit_tiny"
     from stealth_ns.scenes import make_scene
 
-    make_scene(preset="orbit", output=out, resolution="64x48", views=16, seed=0)
-    return out
+    def build(folder: Path) -> None:
+        make_scene(preset="orbit", output=folder / "orbit_tiny", resolution="64x48", views=16, seed=0)
+
+    return built_once(tmp_path_factory, "scenes", build) / "orbit_tiny"
 
 
 def train_tiny(
@@ -52,7 +75,35 @@ def train_tiny(
 @pytest.fixture(scope="session")
 def tiny_run_pair(tiny_orbit_scene, tmp_path_factory) -> tuple[Path, Path]:
     """(poisoned, clean) config.yml of two 60-iteration runs on ``tiny_orbit_scene``."""
-    out = tmp_path_factory.mktemp("runs")
-    poisoned = train_tiny(tiny_orbit_scene, out, "poisoned", "--pipeline.attack.injection-step", "20")
-    clean = train_tiny(tiny_orbit_scene, out, "clean", "--pipeline.attack.enabled", "False")
-    return poisoned, clean
+
+    def build(out: Path) -> None:
+        train_tiny(tiny_orbit_scene, out, "poisoned", "--pipeline.attack.injection-step", "20")
+        train_tiny(tiny_orbit_scene, out, "clean", "--pipeline.attack.enabled", "False")
+
+    out = built_once(tmp_path_factory, "runs", build)
+    return tuple(out / "tiny" / "stealth-splat-lite" / name / "config.yml" for name in ("poisoned", "clean"))
+
+
+#: Files in the report folder before ``tiny_report`` runs: pictures of an earlier report (removed) and
+#: the user's own files (kept).
+STALE_REPORT_FILES = ("images/view9999_target.png", "images/heldout999_gt.png")
+USER_REPORT_FILES = ("notes.txt", "images/my_picture.png", "report.json.bak")
+
+
+@pytest.fixture(scope="session")
+def tiny_report(tiny_run_pair, tmp_path_factory) -> tuple[Path, str]:
+    """(folder, stdout) of ``stealth-ns report`` on ``tiny_run_pair``, written into a folder that already
+    held :data:`STALE_REPORT_FILES` and :data:`USER_REPORT_FILES` (each holding "x")."""
+    poisoned, clean = tiny_run_pair
+
+    def build(folder: Path) -> None:
+        out = folder / "report"
+        for name in STALE_REPORT_FILES + USER_REPORT_FILES:
+            (out / name).parent.mkdir(parents=True, exist_ok=True)
+            (out / name).write_text("x")
+        proc = run_cli("stealth-ns", "report", "--poisoned", str(poisoned), "--clean", str(clean),
+                       "--output", str(out))  # fmt: skip
+        (folder / "stdout.txt").write_text(proc.stdout)
+
+    folder = built_once(tmp_path_factory, "report", build)
+    return folder / "report", (folder / "stdout.txt").read_text()

@@ -45,13 +45,10 @@ def test_rotate_pose_orbits_position_and_keeps_looking_at_the_centre():
 
 
 @pytest.mark.slow
-def test_report_on_two_tiny_runs(tiny_run_pair, tmp_path):
+def test_report_on_two_tiny_runs(tiny_run_pair, tiny_report, tmp_path):
     poisoned, clean = tiny_run_pair
-    out = tmp_path / "report"
-    proc = run_cli(
-        "stealth-ns", "report", "--poisoned", str(poisoned), "--clean", str(clean), "--output", str(out)
-    )
-    assert "attack success:" in proc.stdout and str(out.resolve() / "report.html") in proc.stdout
+    out, stdout = tiny_report
+    assert "attack success:" in stdout and str(out.resolve() / "report.html") in stdout
     report = json.loads((out / "report.json").read_text())
     assert REQUIRED_KEYS <= report.keys()
     assert report["v_test_drop"] == pytest.approx(report["v_test_psnr_clean"] - report["v_test_psnr"])
@@ -69,7 +66,7 @@ def test_report_on_two_tiny_runs(tiny_run_pair, tmp_path):
     assert set(stealth["auroc"]) == set(POSTHOC) and "camera-proximity" in POSTHOC
     assert all(0.0 <= a <= 1.0 for a in stealth["auroc"].values())
     assert report["stealthy_success"] == (report["attack_success"] and not stealth["defeated_by"])
-    assert "stealth: AUROC view-support" in proc.stdout
+    assert "stealth: AUROC view-support" in stdout
 
     page = (out / "report.html").read_text()
     sources = re.findall(r'src="([^"]+)"', page)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import BIN, run_cli
+from conftest import BIN, STALE_REPORT_FILES, USER_REPORT_FILES, run_cli
 
 from stealth_ns.errors import StealthNSError
 from stealth_ns.safe_config import SafeConfigLoader, load_config
@@ -167,17 +167,10 @@ def test_report_refuses_a_recorded_fingerprint_of_other_images(tiny_run_pair, tm
 
 # ------------------------------------------------------------------ item 9: smaller ones
 @pytest.mark.slow
-def test_reused_report_folder_loses_stale_pictures_and_keeps_user_files(tiny_run_pair, tmp_path):
-    poisoned, clean = tiny_run_pair
-    out = tmp_path / "report"
-    (out / "images").mkdir(parents=True)
-    stale = [out / "images" / "view9999_target.png", out / "images" / "heldout999_gt.png"]
-    mine = [out / "notes.txt", out / "images" / "my_picture.png", out / "report.json.bak"]
-    for path in stale + mine:
-        path.write_text("x")
-    run_cli("stealth-ns", "report", "--poisoned", str(poisoned), "--clean", str(clean), "--output", str(out))
-    assert not any(p.exists() for p in stale)
-    assert all(p.read_text() == "x" for p in mine)
+def test_reused_report_folder_loses_stale_pictures_and_keeps_user_files(tiny_report):
+    out, _ = tiny_report  # written into a folder that held these files
+    assert not any((out / name).exists() for name in STALE_REPORT_FILES)
+    assert all((out / name).read_text() == "x" for name in USER_REPORT_FILES)
     page = (out / "report.html").read_text()
     assert "view9999" not in page and (out / "report.json").is_file()
 
