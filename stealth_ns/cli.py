@@ -342,6 +342,9 @@ class Defend:
     options: Annotated[DefendConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DefendConfig)
 
     def main(self) -> None:
+        from stealth_ns.defend.arguments import check_arguments
+
+        check_arguments(self.run, self.output, self.options, self.clean)  # before torch and nerfstudio load
         from stealth_ns.defend.command import run_defend
 
         run_defend(self.run, self.output, self.options, self.clean)
@@ -386,6 +389,9 @@ class Scan:
     options: Annotated[ScanConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ScanConfig)
 
     def main(self) -> None:
+        from stealth_ns.scan.arguments import check_arguments
+
+        check_arguments(self.model, self.data, self.output, self.options)  # before torch and nerfstudio load
         from stealth_ns.scan.command import run_scan, summary_lines
 
         doc = run_scan(self.model, self.data, self.output, self.options)

@@ -3,13 +3,45 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
+import pytest
 from conftest import run_cli
 
 
 def test_ns_train_lists_the_methods():
     out = run_cli("ns-train", "--help").stdout
     assert "stealth-splat" in out and "stealth-splat-lite" in out
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["poison-dataset", "--data", "{tmp}", "--output", "{tmp}/o", "--t-min", "-1"], "--t-min"),
+        (["ipa-poison", "--data", "{tmp}", "--output", "{tmp}/o", "--epsilon", "0"], "--epsilon"),
+        (["ipa-poison", "--data", "{tmp}", "--output", "{tmp}/o", "--multi-view", "9"], "--multi-view"),
+        (["defend", "--run", "{tmp}/run/config.yml", "--output", "{tmp}/run/d"], "inside the run folder"),
+        (["scan", "--model", "{tmp}/run", "--output", "{tmp}/run/scan"], "inside the run folder"),
+        (["bench", "train", "--preset", "nope"], "--preset 'nope'"),
+    ],
+    ids=["poison-dataset", "ipa-epsilon", "ipa-views", "defend", "scan", "bench-train"],
+)
+def test_bad_arguments_are_refused_before_torch_and_nerfstudio_load(tmp_path, args, needle):
+    """A mistyped option or output folder costs a second, not the 4-15 s of importing torch and
+    nerfstudio first (docs/testing.md)."""
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "config.yml").write_text("x: 1\n")
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    code = (
+        "import sys\nfrom stealth_ns.cli import main\nfrom stealth_ns.errors import StealthNSError\n"
+        f"try:\n    main({argv!r})\n"
+        "except StealthNSError as err:\n"
+        "    print(sorted(m for m in ('torch', 'nerfstudio') if m in sys.modules), err)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.stdout.startswith("[] ") and needle in proc.stdout, proc.stdout + proc.stderr[-2000:]
+    assert not (tmp_path / "run" / "d").exists() and not (tmp_path / "run" / "scan").exists()
 
 
 def test_stealth_ns_help_lists_commands():

@@ -10,8 +10,9 @@ from test_bench_attack import TINY, fake_poison, fakes  # noqa: F401  (the fixtu
 
 from stealth_ns.bench.attack import run_bench
 from stealth_ns.bench.defence_table import TABLE_KEY, table_data
-from stealth_ns.defences.config import DEFENCES
+from stealth_ns.defences.config import DEFENCES, DefendConfig
 from stealth_ns.defend import command as defend_module
+from stealth_ns.defend.arguments import check_arguments
 
 
 def _fake_result(run: Path) -> dict:
@@ -32,7 +33,7 @@ def test_bench_defend_adds_table_d_and_reuses_it(tmp_path, fakes, monkeypatch, c
     calls = []
 
     def fake_defend(run, output, cfg=None, clean=None):
-        defend_module._check_output(Path(run), Path(output), Path(clean))  # the real one's guard
+        check_arguments(Path(run), Path(output), DefendConfig(), Path(clean))  # the real one's guard
         calls.append((Path(run).parent.name, Path(clean).parent.name))
         return _fake_result(run)
 

@@ -201,10 +201,10 @@ def test_defend_refuses_an_output_inside_the_run(tmp_path):
 def test_defend_refuses_the_attacked_run_as_its_clean_run_before_loading(tiny_run_pair, tmp_path):
     """``--clean`` the attacked run itself: one line before any run is loaded (``report`` refuses it too;
     another attacked run as ``--clean`` is refused once loaded, by ``clean_reference``)."""
-    from stealth_ns.defend import command
+    from stealth_ns.defend.arguments import check_arguments
     from stealth_ns.errors import StealthNSError
 
     poisoned, _ = tiny_run_pair
     for clean in (poisoned, poisoned.parent):  # its config.yml or its folder
         with pytest.raises(StealthNSError, match="is the attacked run itself"):
-            command._check_output(poisoned, tmp_path / "out", clean)
+            check_arguments(poisoned, tmp_path / "out", DefendConfig(), clean)

@@ -31,6 +31,7 @@ from stealth_ns.defences import detection
 from stealth_ns.defences.config import POSTHOC, DefendConfig
 from stealth_ns.defences.posthoc import DESCRIPTIONS, DefenceInputs, Scored, score
 from stealth_ns.defences.signals import poison_tags
+from stealth_ns.defend.arguments import check_arguments
 from stealth_ns.defend.evaluate import (
     Evaluator,
     Target,
@@ -42,7 +43,6 @@ from stealth_ns.defend.outputs import DEFEND_FILE, fmt, pct, write_outputs
 from stealth_ns.defend.rule import DEFEAT_RULE
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import json_safe, write_json_atomic
-from stealth_ns.output_folder import check_outside, check_writable
 from stealth_ns.provenance import software_and_hardware
 from stealth_ns.runs.loaded import load_run
 from stealth_ns.runs.pair import RunPair
@@ -128,12 +128,8 @@ def run_defend(
     from stealth_ns.defend.input_filter_retrain import run_input_filter
 
     cfg = cfg or DefendConfig()
-    try:
-        cfg.validate()
-    except ValueError as err:
-        raise StealthNSError(str(err)) from None
     output = Path(output)
-    _check_output(Path(run), output, clean)
+    check_arguments(Path(run), output, cfg, None if clean is None else Path(clean))
     t0 = time.perf_counter()
     target = load_target(Path(run))
     baseline, scored, entries = run_posthoc(target, cfg, output)
@@ -178,23 +174,3 @@ def clean_reference(target: Target, clean: Path) -> dict[str, Any]:
         "n_gaussians": int(clean_run.model.num_points),
         **evaluate(None),
     }
-
-
-def _check_output(run: Path, output: Path, clean: Path | None) -> None:
-    """One-line errors before anything is loaded: the output must be writable and not a run folder."""
-    check_writable(output, "defence results")
-    for given in (run, clean):
-        if given is not None:
-            check_outside(output, given if given.is_dir() else given.parent, "the run folder")
-    if clean is not None:
-        _check_clean(run, clean)
-
-
-def _config_of(given: Path) -> Path:
-    return (given / "config.yml" if given.is_dir() else given).resolve()
-
-
-def _check_clean(run: Path, clean: Path) -> None:
-    """``--clean`` must be another run than the attacked one (as ``report`` requires)."""
-    if _config_of(clean) == _config_of(run):
-        raise StealthNSError(f"--clean {clean} is the attacked run itself: give a clean run of its scene")

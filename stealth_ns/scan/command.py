@@ -6,9 +6,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.errors import StealthNSError
-from stealth_ns.output_folder import check_outside, check_writable
 from stealth_ns.runs.imported import load_model
+from stealth_ns.scan.arguments import check_arguments
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.outputs import HTML_FILE, SCAN_FILE, write_outputs
 from stealth_ns.scan.scanner import scan_model
@@ -17,16 +16,7 @@ from stealth_ns.scan.scanner import scan_model
 def run_scan(model: Path, data: Path | None, output: Path, cfg: ScanConfig) -> dict[str, Any]:
     """Scan ``model`` on the cameras of ``data`` and write every output into ``output``; returns
     scan.json's content. StealthNSError with one line on bad input, before any slow work."""
-    try:
-        cfg.validate()
-    except ValueError as err:
-        raise StealthNSError(str(err)) from None
-    check_writable(output, "scan")
-    if Path(model).is_dir() or (Path(model).is_file() and Path(model).suffix.lower() != ".ply"):
-        # a run (folder or config.yml): never into its folder (a PLY's folder may be anything)
-        check_outside(output, model if Path(model).is_dir() else Path(model).parent, "the run folder")
-    if data is not None:
-        check_outside(output, data, "the dataset")
+    check_arguments(Path(model), data, Path(output), cfg)
     t0 = time.perf_counter()
     print(f"loading {model}" + (f" on {data}" if data is not None else ""))
     imported = load_model(Path(model), None if data is None else Path(data), cfg.frame)
