@@ -58,6 +58,11 @@ def tiny_orbit_scene(tmp_path_factory) -> Path:
     return built_once(tmp_path_factory, "scenes", build) / "orbit_tiny"
 
 
+def tiny_config(out: Path, name: str) -> Path:
+    """The config.yml that :func:`train_tiny` writes for run ``name`` under ``out``."""
+    return out / "tiny" / "stealth-splat-lite" / name / "config.yml"
+
+
 def train_tiny(
     scene: Path, out: Path, name: str, *extra: str, iterations: int = 60, vis: str = "tensorboard"
 ) -> Path:
@@ -69,7 +74,7 @@ def train_tiny(
         "nerfstudio-data", "--data", str(scene),
     )  # fmt: skip
     assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
-    return out / "tiny" / "stealth-splat-lite" / name / "config.yml"
+    return tiny_config(out, name)
 
 
 @pytest.fixture(scope="session")
@@ -81,7 +86,7 @@ def tiny_run_pair(tiny_orbit_scene, tmp_path_factory) -> tuple[Path, Path]:
         train_tiny(tiny_orbit_scene, out, "clean", "--pipeline.attack.enabled", "False")
 
     out = built_once(tmp_path_factory, "runs", build)
-    return tuple(out / "tiny" / "stealth-splat-lite" / name / "config.yml" for name in ("poisoned", "clean"))
+    return tiny_config(out, "poisoned"), tiny_config(out, "clean")
 
 
 #: Files in the report folder before ``tiny_report`` runs: pictures of an earlier report (removed) and
