@@ -177,6 +177,9 @@ class Report:
     leaves at <= 0.5 dB of V-test, stealthy success (seconds at the demo's scale; --no-stealth skips it)."""
 
     def main(self) -> None:
+        from stealth_ns.report.arguments import check_arguments
+
+        check_arguments(self.poisoned, self.clean, self.output, self.defend)  # before torch loads
         from stealth_ns.report.write import summary_lines, write_report
 
         data = (self.poisoned_data, self.clean_data)

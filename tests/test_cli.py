@@ -15,6 +15,9 @@ def test_ns_train_lists_the_methods():
     assert "stealth-splat" in out and "stealth-splat-lite" in out
 
 
+REPORT = ["report", "--poisoned", "{tmp}/run", "--clean", "{tmp}/c", "--output", "{tmp}/r"]
+
+
 @pytest.mark.parametrize(
     "args, needle",
     [
@@ -24,15 +27,42 @@ def test_ns_train_lists_the_methods():
         (["defend", "--run", "{tmp}/run/config.yml", "--output", "{tmp}/run/d"], "inside the run folder"),
         (["scan", "--model", "{tmp}/run", "--output", "{tmp}/run/scan"], "inside the run folder"),
         (["bench", "train", "--preset", "nope"], "--preset 'nope'"),
+        (
+            ["report", "--poisoned", "{tmp}/run", "--clean", "{tmp}/run/config.yml", "--output", "{tmp}/r"],
+            "is the poisoned run itself",
+        ),
+        (
+            ["report", "--poisoned", "{tmp}/nope", "--clean", "{tmp}/c", "--output", "{tmp}/r"],
+            "--poisoned {tmp}/nope: no run config",
+        ),
+        ([*REPORT, "--defend", "{tmp}/run"], "no readable defend.json"),
+        ([*REPORT, "--defend", "{tmp}/d"], "was made for {tmp}/other/config.yml, not for the poisoned run"),
     ],
-    ids=["poison-dataset", "ipa-epsilon", "ipa-views", "defend", "scan", "bench-train"],
+    ids=[
+        "poison-dataset",
+        "ipa-epsilon",
+        "ipa-views",
+        "defend",
+        "scan",
+        "bench-train",
+        "report-same-run",
+        "report-missing-run",
+        "report-no-defend-json",
+        "report-defend-of-another-run",
+    ],
 )
 def test_bad_arguments_are_refused_before_torch_and_nerfstudio_load(tmp_path, args, needle):
     """A mistyped option or output folder costs a second, not the 4-15 s of importing torch and
     nerfstudio first (docs/testing.md)."""
-    (tmp_path / "run").mkdir()
-    (tmp_path / "run" / "config.yml").write_text("x: 1\n")
+    for run in ("run", "c"):
+        (tmp_path / run).mkdir()
+        (tmp_path / run / "config.yml").write_text("x: 1\n")
+    (tmp_path / "d").mkdir()  # a defend folder of another run
+    (tmp_path / "d" / "defend.json").write_text(json.dumps({"run": str(tmp_path / "other" / "config.yml")}))
+    (tmp_path / "r").mkdir()  # an earlier report, kept when the next one is refused
+    (tmp_path / "r" / "report.html").write_text("earlier")
     argv = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    needle = needle.replace("{tmp}", str(tmp_path))
     code = (
         "import sys\nfrom stealth_ns.cli import main\nfrom stealth_ns.errors import StealthNSError\n"
         f"try:\n    main({argv!r})\n"
@@ -42,6 +72,7 @@ def test_bad_arguments_are_refused_before_torch_and_nerfstudio_load(tmp_path, ar
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.stdout.startswith("[] ") and needle in proc.stdout, proc.stdout + proc.stderr[-2000:]
     assert not (tmp_path / "run" / "d").exists() and not (tmp_path / "run" / "scan").exists()
+    assert (tmp_path / "r" / "report.html").read_text() == "earlier"
 
 
 def test_stealth_ns_help_lists_commands():
@@ -73,7 +104,10 @@ def test_bench_raster_quick_writes_json(tmp_path):
         } <= set(case)
         # both measured (their ratio is a benchmark figure, not behaviour: a loaded machine can invert it)
         assert case["forward_backward_ms"] > 0 and case["forward_ms"] > 0
-    assert data["speedup_fwd_bwd"][case_cpp["name"]] > 1.0
+    # the speed-ups are the reference's time over the compiled one's, of the rows written beside them
+    name = case_cpp["name"]
+    for key, ms in (("speedup_fwd_bwd", "forward_backward_ms"), ("speedup_fwd", "forward_ms")):
+        assert data[key][name] == pytest.approx(case_torch[ms] / case_cpp[ms], rel=1e-6)
 
 
 def test_bench_raster_json_into_missing_folder_is_an_error(tmp_path):

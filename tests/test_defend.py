@@ -182,10 +182,12 @@ def test_defend_end_to_end_on_tiny_runs(tiny_run_pair, tmp_path):
     assert {k: stealth["strongest_cut"][k] for k in same["strongest_cut"]} == same["strongest_cut"]
     assert (report / "defences" / "curves.png").is_file()
     wrong = run_cli(
-        "stealth-ns", "report", "--poisoned", str(clean), "--clean", str(clean), "--output", str(report),
+        "stealth-ns", "report", "--poisoned", str(clean), "--clean", str(poisoned), "--output", str(report),
         "--defend", str(out), check=False,
     )  # fmt: skip
     assert wrong.returncode == 2 and "Traceback" not in wrong.stderr
+    assert f"--defend {out} was made for {poisoned.resolve()}" in wrong.stderr
+    assert (report / "report.html").read_text() == page  # refused before the earlier report was cleared
 
 
 def test_defend_refuses_an_output_inside_the_run(tmp_path):

@@ -74,9 +74,9 @@ def test_safe_loader_refuses_code_and_runs_nothing(tmp_path, monkeypatch, text, 
 
 def test_report_on_a_booby_trapped_run_executes_nothing(tmp_path):
     """`stealth-ns report` on a run folder whose config.yml runs a command: refused, nothing run."""
-    evil = fake_run(tmp_path / "evil", EVIL)
+    evil, other = fake_run(tmp_path / "evil", EVIL), fake_run(tmp_path / "other", EVIL)
     proc = subprocess.run(
-        [str(BIN / "stealth-ns"), "report", "--poisoned", str(evil), "--clean", str(evil),
+        [str(BIN / "stealth-ns"), "report", "--poisoned", str(evil), "--clean", str(other),
          "--output", str(tmp_path / "report")],
         cwd=tmp_path, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
@@ -182,6 +182,9 @@ def test_unwritable_report_output_fails_before_loading_runs(tmp_path, monkeypatc
         raise AssertionError("the runs were loaded before the output was checked")
 
     monkeypatch.setattr(report.RunPair, "load", no_loading)
+    for run in ("p", "c"):  # runs as far as the checks before loading can tell
+        (tmp_path / run).mkdir()
+        (tmp_path / run / "config.yml").write_text("x: 1\n")
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     with pytest.raises(StealthNSError, match="cannot write the report to .*a-file is a file"):

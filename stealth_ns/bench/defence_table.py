@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from stealth_ns.defences.config import DEFENCES, DefendConfig
-from stealth_ns.defend.outputs import DEFEND_FILE, fmt, pct
+from stealth_ns.defend.outputs import fmt, pct
+from stealth_ns.defend.result_file import DEFEND_FILE
 from stealth_ns.json_io import write_json_atomic
 
 TABLE_KEY = "D"

@@ -8,6 +8,7 @@ from pathlib import Path
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.errors import StealthNSError
 from stealth_ns.output_folder import check_outside, check_writable
+from stealth_ns.runs.paths import run_file
 
 
 def check_arguments(run: Path, output: Path, cfg: DefendConfig, clean: Path | None) -> None:
@@ -21,10 +22,6 @@ def check_arguments(run: Path, output: Path, cfg: DefendConfig, clean: Path | No
     for given in (run, clean):
         if given is not None:
             check_outside(output, given if given.is_dir() else given.parent, "the run folder")
-    if clean is not None and _config_of(clean) == _config_of(run):
+    if clean is not None and run_file(clean).resolve() == run_file(run).resolve():
         # as `report` requires
         raise StealthNSError(f"--clean {clean} is the attacked run itself: give a clean run of its scene")
-
-
-def _config_of(given: Path) -> Path:
-    return (given / "config.yml" if given.is_dir() else given).resolve()

@@ -39,7 +39,8 @@ from stealth_ns.defend.evaluate import (
     defender_images,
     load_target,
 )
-from stealth_ns.defend.outputs import DEFEND_FILE, fmt, pct, write_outputs
+from stealth_ns.defend.outputs import fmt, pct, write_outputs
+from stealth_ns.defend.result_file import DEFEND_FILE
 from stealth_ns.defend.rule import DEFEAT_RULE
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import json_safe, write_json_atomic

@@ -17,7 +17,6 @@ if TYPE_CHECKING:
     from stealth_ns.defend.evaluate import Target
 
 FIGURES = {"roc": "roc.png", "curves": "curves.png", "poisoned_view": "poisoned_view.png"}
-DEFEND_FILE = "defend.json"
 TABLE_FILE = "defend.md"
 COLUMNS = (
     "defence",

@@ -2,29 +2,18 @@
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.defend.outputs import COLUMNS, DEFEND_FILE, best_cuts, table_rows
-from stealth_ns.errors import StealthNSError
+from stealth_ns.defend.outputs import COLUMNS, best_cuts, table_rows
 
 
-def report_section(defend_dir: Path, output: Path, poisoned_run: str) -> dict[str, Any]:
-    """The "Defences" section of ``report.html`` from a ``stealth-ns defend`` folder: its table rows,
-    and its figures copied to ``output/defences/`` (so the report folder stands alone).
-
-    StealthNSError when the folder has no defend.json or it was made for another run."""
-    path = Path(defend_dir) / DEFEND_FILE
-    try:
-        result = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as err:
-        raise StealthNSError(f"--defend {defend_dir}: no readable defend.json ({err})") from None
-    if Path(result.get("run", "")).resolve() != Path(poisoned_run).resolve():
-        raise StealthNSError(
-            f"--defend {defend_dir} was made for {result.get('run')}, not for the poisoned run {poisoned_run}"
-        )
+def report_section(result: dict[str, Any], defend_dir: Path, output: Path) -> dict[str, Any]:
+    """The "Defences" section of ``report.html`` from the ``defend.json`` of a ``stealth-ns defend``
+    folder (:func:`~stealth_ns.defend.result_file.read_defend_result` checks that it is the poisoned
+    run's): its table rows, and its figures copied to ``output/defences/`` (so the report folder stands
+    alone)."""
     figures = {}
     (output / "defences").mkdir(parents=True, exist_ok=True)
     for key, name in (result.get("figures") or {}).items():

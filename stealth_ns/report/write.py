@@ -28,9 +28,9 @@ from stealth_ns.figures import figure_grid, save_plot
 from stealth_ns.image_io import save_png
 from stealth_ns.json_io import json_safe
 from stealth_ns.metrics import psnr
-from stealth_ns.output_folder import check_writable
 from stealth_ns.pipeline import rgb_float
 from stealth_ns.provenance import software_and_hardware
+from stealth_ns.report.arguments import check_arguments
 from stealth_ns.report.html import fmt, render_html
 from stealth_ns.report.numbers import neighbour_curve, pair_metrics
 from stealth_ns.runs.loaded import render
@@ -135,7 +135,7 @@ def write_report(
     Either run may be a 3DGS PLY from another trainer with its dataset (``*_data``: a victim of
     ``poison-dataset`` with the poisoned copy it was trained on)."""
     output = Path(output)
-    check_writable(output)  # before loading two runs (the slow part)
+    defend_result = check_arguments(poisoned_config, clean_config, output, defend)  # before the slow part
     pair = RunPair.load(Path(poisoned_config), Path(clean_config), poisoned_data, clean_data)
     images = output / "images"
     clear_previous_report(output)
@@ -148,7 +148,7 @@ def write_report(
     if defend is not None:
         from stealth_ns.report.defences_section import report_section
 
-        report["defences"] = report_section(Path(defend), output, report["poisoned_run"])
+        report["defences"] = report_section(defend_result, Path(defend), output)
 
     view_rows, view_files = [], {}
     for v in pair.views:

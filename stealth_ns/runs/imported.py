@@ -39,6 +39,7 @@ from stealth_ns.pipeline import rgb_float
 from stealth_ns.poisoning.dataset_copy import SourceDataset
 from stealth_ns.render_view import render_camera
 from stealth_ns.runs.loaded import LoadedRun, load_run
+from stealth_ns.runs.paths import run_file
 
 #: The method whose model and pipeline hold an imported model (its renderer, its fine-tune rates).
 HOST_METHOD = "stealth-splat-lite"
@@ -75,7 +76,7 @@ def load_model(model: Path, data: Path | None = None, frame: str = "auto") -> Im
                 f"--data is needed with a PLY ({model}): the dataset whose cameras it was trained on"
             )
         return _load_ply(model, data, frame)
-    config_path = model / "config.yml" if model.is_dir() else model
+    config_path = run_file(model)
     if not config_path.is_file():
         raise StealthNSError(f"{model} is neither a PLY file nor a run (no config.yml)")
     from stealth_ns.safe_config import load_config

@@ -20,6 +20,7 @@ from stealth_ns.checkpoints import checkpoint_steps
 from stealth_ns.errors import StealthNSError, StealthNSExit
 from stealth_ns.fingerprint import dataset_fingerprint, recorded_fingerprint
 from stealth_ns.render_view import render_camera
+from stealth_ns.runs.paths import run_file
 
 
 @dataclass
@@ -67,9 +68,7 @@ def load_run(config_path: Path) -> LoadedRun:
     """
     from stealth_ns.safe_config import safe_eval_setup
 
-    config_path = Path(config_path)
-    if config_path.is_dir():
-        config_path = config_path / "config.yml"
+    config_path = run_file(config_path)
     if not config_path.is_file():
         raise StealthNSError(f"no run config at {config_path} (give the config.yml of a training run)")
     models = config_path.parent / "nerfstudio_models"
