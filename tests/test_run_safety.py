@@ -204,6 +204,28 @@ def test_unwritable_report_output_fails_before_loading_runs(tmp_path, monkeypatc
             locked.chmod(0o700)
 
 
+def test_a_report_that_fails_keeps_the_earlier_report(tmp_path, monkeypatch):
+    """The earlier report in --output is cleared only once the new one's numbers exist."""
+    from stealth_ns.report import write as report
+
+    def failing_metrics(*args, **kwargs):
+        raise StealthNSError("the poisoned views could not be rendered")
+
+    monkeypatch.setattr(report.RunPair, "load", lambda *args: object())
+    monkeypatch.setattr(report, "pair_metrics", failing_metrics)
+    for run in ("p", "c"):
+        (tmp_path / run).mkdir()
+        (tmp_path / run / "config.yml").write_text("x: 1\n")
+    earlier = tmp_path / "out"
+    (earlier / "images").mkdir(parents=True)
+    (earlier / "report.html").write_text("earlier")
+    (earlier / "images" / "view0000_target.png").write_bytes(b"png")
+    with pytest.raises(StealthNSError, match="could not be rendered"):
+        report.write_report(tmp_path / "p", tmp_path / "c", earlier)
+    assert (earlier / "report.html").read_text() == "earlier"
+    assert (earlier / "images" / "view0000_target.png").read_bytes() == b"png"
+
+
 @pytest.mark.parametrize("iterations", ["0", "-5"])
 def test_demo_with_no_iterations_fails_before_the_scene(tmp_path, monkeypatch, iterations):
     import stealth_ns.scenes

@@ -137,15 +137,16 @@ def write_report(
     output = Path(output)
     defend_result = check_arguments(poisoned_config, clean_config, output, defend)  # before the slow part
     pair = RunPair.load(Path(poisoned_config), Path(clean_config), poisoned_data, clean_data)
-    images = output / "images"
-    clear_previous_report(output)
-    images.mkdir(parents=True, exist_ok=True)
     report = pair_metrics(pair, stealth=stealth)
     report["poisoned_run"] = str(pair.poisoned.config_path.resolve())
     report["clean_run"] = str(pair.clean.config_path.resolve())
     report["created"] = _dt.datetime.now().isoformat(timespec="seconds")
     report["defences"] = None
-    if defend is not None:
+    # an earlier report in the folder is replaced only now: a refusal or a failure above leaves it as it was
+    images = output / "images"
+    clear_previous_report(output)
+    images.mkdir(parents=True, exist_ok=True)
+    if defend_result is not None:
         from stealth_ns.report.defences_section import report_section
 
         report["defences"] = report_section(defend_result, Path(defend), output)
