@@ -183,8 +183,7 @@ def test_unwritable_report_output_fails_before_loading_runs(tmp_path, monkeypatc
 
     monkeypatch.setattr(report.RunPair, "load", no_loading)
     for run in ("p", "c"):  # runs as far as the checks before loading can tell
-        (tmp_path / run).mkdir()
-        (tmp_path / run / "config.yml").write_text("x: 1\n")
+        fake_run(tmp_path / run, "x: 1\n")
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     with pytest.raises(StealthNSError, match="cannot write the report to .*a-file is a file"):
@@ -214,8 +213,7 @@ def test_a_report_that_fails_keeps_the_earlier_report(tmp_path, monkeypatch):
     monkeypatch.setattr(report.RunPair, "load", lambda *args: object())
     monkeypatch.setattr(report, "pair_metrics", failing_metrics)
     for run in ("p", "c"):
-        (tmp_path / run).mkdir()
-        (tmp_path / run / "config.yml").write_text("x: 1\n")
+        fake_run(tmp_path / run, "x: 1\n")
     earlier = tmp_path / "out"
     (earlier / "images").mkdir(parents=True)
     (earlier / "report.html").write_text("earlier")

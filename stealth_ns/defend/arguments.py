@@ -8,7 +8,7 @@ from pathlib import Path
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.errors import StealthNSError
 from stealth_ns.output_folder import check_outside, check_writable
-from stealth_ns.runs.paths import run_file
+from stealth_ns.runs.paths import run_file, same_run
 
 
 def check_arguments(run: Path, output: Path, cfg: DefendConfig, clean: Path | None) -> None:
@@ -21,7 +21,7 @@ def check_arguments(run: Path, output: Path, cfg: DefendConfig, clean: Path | No
     check_writable(output, "defence results")
     for given in (run, clean):
         if given is not None:
-            check_outside(output, given if given.is_dir() else given.parent, "the run folder")
-    if clean is not None and run_file(clean).resolve() == run_file(run).resolve():
+            check_outside(output, run_file(given).parent, "the run folder")
+    if clean is not None and same_run(clean, run):
         # as `report` requires
         raise StealthNSError(f"--clean {clean} is the attacked run itself: give a clean run of its scene")

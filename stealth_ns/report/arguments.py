@@ -10,7 +10,7 @@ from typing import Any
 from stealth_ns.defend.result_file import read_defend_result
 from stealth_ns.errors import StealthNSError
 from stealth_ns.output_folder import check_writable
-from stealth_ns.runs.paths import run_file
+from stealth_ns.runs.paths import run_file, same_run
 
 
 def check_arguments(poisoned: Path, clean: Path, output: Path, defend: Path | None) -> dict[str, Any] | None:
@@ -24,6 +24,6 @@ def check_arguments(poisoned: Path, clean: Path, output: Path, defend: Path | No
                 "or a 3DGS PLY)"
             )
     check_writable(output)
-    if run_file(clean).resolve() == run_file(poisoned).resolve():
+    if same_run(clean, poisoned):
         raise StealthNSError(f"--clean {clean} is the poisoned run itself: give a clean run of its scene")
     return None if defend is None else read_defend_result(defend, poisoned)

@@ -10,3 +10,8 @@ def run_file(given: Path) -> Path:
     itself otherwise (a config.yml or a PLY). A loaded run keeps it as its ``config_path``."""
     given = Path(given)
     return given / "config.yml" if given.is_dir() else given
+
+
+def same_run(a: Path, b: Path) -> bool:
+    """Whether two runs as given (folder, config.yml or PLY) are one and the same (links resolved)."""
+    return run_file(a).resolve() == run_file(b).resolve()

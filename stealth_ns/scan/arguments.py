@@ -7,6 +7,7 @@ from pathlib import Path
 
 from stealth_ns.errors import StealthNSError
 from stealth_ns.output_folder import check_outside, check_writable
+from stealth_ns.runs.paths import run_file
 from stealth_ns.scan.config import ScanConfig
 
 
@@ -20,6 +21,6 @@ def check_arguments(model: Path, data: Path | None, output: Path, cfg: ScanConfi
     check_writable(output, "scan")
     if Path(model).is_dir() or (Path(model).is_file() and Path(model).suffix.lower() != ".ply"):
         # a run (folder or config.yml): never into its folder (a PLY's folder may be anything)
-        check_outside(output, model if Path(model).is_dir() else Path(model).parent, "the run folder")
+        check_outside(output, run_file(model).parent, "the run folder")
     if data is not None:
         check_outside(output, data, "the dataset")
