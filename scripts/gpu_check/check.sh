@@ -11,6 +11,8 @@ ITERS="${ITERS:-2000}"
 LIMIT="${LIMIT:-560}"  # keep under the device call's timeout_s
 BENCH_STEPS="${BENCH_STEPS:-2999}"  # bench train's timed steps (2999 after step 0: a whole lite run)
 TESTS="${TESTS:-1}"  # 0: no tests (a second call on the warm machine, for the stages skipped)
+BENCH="${BENCH:-1}"  # 0: no bench train (likewise)
+SPLATFACTO="${SPLATFACTO:-1}"  # 0: no stock splatfacto training (done in earlier sessions; saves ~65 s)
 T0=$(date +%s)
 t() { echo "=== [$(($(date +%s) - T0)) s] $*"; }
 # fits SECONDS: is there time for a stage expected to take SECONDS? Says so when not.
@@ -72,7 +74,7 @@ if [ "$TESTS" != 0 ] && fits 130 "make test-gpu's tests"; then
 fi
 
 # bench train's whole stealth-splat-lite run (3000 steps, each timed) on the carried scene, attack on, off
-if [ -d .gpu/bench ]; then
+if [ "$BENCH" != 0 ] && [ -d .gpu/bench ]; then
     for attack in attack no-attack; do
         fits 100 "bench train --$attack on .gpu/bench" || continue
         timeout 240 "$BIN/stealth-ns" bench train --data .gpu/bench --warmup 0 --steps "$BENCH_STEPS" \
@@ -105,7 +107,7 @@ w = torchvision.models.AlexNet_Weights.IMAGENET1K_V1
 os.makedirs('/tmp/th/hub/checkpoints', exist_ok=True)
 torch.save(torchvision.models.alexnet().state_dict(), '/tmp/th/hub/checkpoints/' + os.path.basename(w.url))
 "
-fits 70 "$ITERS-step splatfacto" && TORCH_HOME=/tmp/th run splatfacto splatfacto
+[ "$SPLATFACTO" != 0 ] && fits 70 "$ITERS-step splatfacto" && TORCH_HOME=/tmp/th run splatfacto splatfacto
 t trainings-done
 python3 - <<'PY'
 import glob, json, torch
