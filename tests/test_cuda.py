@@ -99,6 +99,27 @@ def test_view_noise_drawn_on_the_gpu_is_the_cpus():
         assert on_gpu.device.type == "cuda" and torch.equal(on_gpu.cpu(), noisy_uint8(image, sigma, 42))
 
 
+def test_view_noise_replayed_as_cuda_graphs_is_the_cpus():
+    """The view noise of a GPU-cached image runs as one CUDA graph per shape, bitwise the CPU's; the
+    shapes interleaved, and each call's output its own (the graph's buffer is reused)."""
+    from stealth_ns.attack import normal_draw
+
+    g = torch.Generator().manual_seed(3)
+    images = [
+        torch.randint(0, 256, shape, dtype=torch.uint8, generator=g)
+        for shape in ((97, 131, 3), (756, 1008, 3))
+    ]
+    normal_draw._noise_graphs.clear()
+    outputs = []
+    for step, (sigma, key) in enumerate(((0.5, 0), (12.3, 2**63 - 1), (300.0, 987654321))):
+        for image in images:
+            got = normal_draw.noisy_uint8(image.cuda(), sigma, key + step)
+            outputs.append((got, normal_draw.noisy_uint8(image, sigma, key + step)))
+    assert normal_draw._noise_graphs_off == "" and len(normal_draw._noise_graphs) == 2
+    for got, expected in outputs:  # compared after all calls: no output was overwritten by a later replay
+        assert got.device.type == "cuda" and torch.equal(got.cpu(), expected)
+
+
 @pytest.mark.slow
 def test_short_poisoned_run_on_the_gpu(tiny_orbit_scene, tmp_path):
     """stealth-splat-lite with the attack on a CUDA device: gsplat renders, the poison is injected,

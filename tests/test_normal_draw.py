@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -97,6 +99,76 @@ def test_torch_operations_equal_the_reference_bitwise():
         normal_draw._noisy_uint8_on(strided, 9.0, 3).numpy(),
         noisy_uint8_reference(strided.contiguous().numpy(), 9.0, 3),
     )
+
+
+def test_torch_operations_with_tensor_sigma_and_key_equal_the_reference():
+    # a CUDA graph reads sigma and the key from device memory: the same operations with scalar tensors
+    image = torch.randint(0, 256, (37, 29, 3), dtype=torch.uint8, generator=torch.Generator().manual_seed(2))
+    for sigma, key in ((0.5, 0), (12.3, 2**63 - 1), (300.0, 987654321)):
+        sigma_t = torch.tensor(float(np.float32(sigma)), dtype=torch.float32)
+        got = normal_draw._noisy_uint8_on(image, sigma_t, torch.tensor(key, dtype=torch.int64))
+        assert np.array_equal(got.numpy(), noisy_uint8_reference(image.numpy(), sigma, key)), (sigma, key)
+
+
+class _FakeGraph:
+    """Stands in for ``_NoiseGraph`` on the CPU: records its calls, returns what it is told to."""
+
+    made: list[tuple[int, ...]] = []
+
+    def __init__(self, shape, device, result=None):
+        _FakeGraph.made.append(tuple(shape))
+        self.result = result
+
+    def __call__(self, image, sigma, key):
+        if self.result == "raise":
+            raise RuntimeError("operation not permitted when stream is capturing\nmore")
+        return normal_draw._noisy_uint8_on(image, sigma, key) if self.result is None else self.result
+
+
+@pytest.fixture
+def graph_state(monkeypatch):
+    monkeypatch.setattr(normal_draw, "_noise_graphs", {})
+    monkeypatch.setattr(normal_draw, "_noise_graphs_off", "")
+    _FakeGraph.made = []
+
+
+def test_noise_graphs_one_per_shape_up_to_the_limit(graph_state, monkeypatch):
+    monkeypatch.setattr(normal_draw, "_NoiseGraph", _FakeGraph)
+    monkeypatch.setattr(normal_draw, "_MAX_NOISE_GRAPHS", 2)
+    images = [torch.full((h, 4, 3), 100, dtype=torch.uint8) for h in (3, 5, 7)]
+    for step in range(3):
+        for image in images:
+            got = normal_draw._noisy_uint8_cuda(image, 20.0, step)
+            assert np.array_equal(got.numpy(), noisy_uint8_reference(image.numpy(), 20.0, step))
+    assert _FakeGraph.made == [(3, 4, 3), (5, 4, 3)]  # the third shape runs eagerly
+    assert normal_draw._noise_graphs_off == ""
+
+
+@pytest.mark.parametrize("result", ["raise", "differs"])
+def test_noise_graphs_turned_off_when_capture_fails_or_differs(graph_state, monkeypatch, result):
+    image = torch.full((4, 6, 3), 100, dtype=torch.uint8)
+    wrong = torch.zeros_like(image)
+    monkeypatch.setattr(
+        normal_draw,
+        "_NoiseGraph",
+        lambda shape, device: _FakeGraph(shape, device, "raise" if result == "raise" else wrong),
+    )
+    with pytest.warns(RuntimeWarning, match="without CUDA graphs"):
+        got = normal_draw._noisy_uint8_cuda(image, 20.0, 5)
+    assert np.array_equal(got.numpy(), noisy_uint8_reference(image.numpy(), 20.0, 5))  # the eager result
+    assert normal_draw._noise_graphs == {}
+    reason = normal_draw._noise_graphs_off
+    assert reason == (
+        "capture failed: operation not permitted when stream is capturing"
+        if result == "raise"
+        else "the replayed noise differed from the eager one"
+    )
+    other = torch.full((9, 6, 3), 7, dtype=torch.uint8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no new warning
+        got = normal_draw._noisy_uint8_cuda(other, 3.0, 6)  # nor a new graph
+    assert np.array_equal(got.numpy(), noisy_uint8_reference(other.numpy(), 3.0, 6))
+    assert _FakeGraph.made == [(4, 6, 3)]
 
 
 def test_noisy_uint8_reference_rounds_half_to_even_and_clips():

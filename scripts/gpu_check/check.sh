@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The GPU check, run ON the device machine from the repository root (see README.md beside this):
 # installs the carried wheels, builds gsplat's CUDA kernels, then, in this order and each only while
-# LIMIT seconds (from the start of this script) leave it time enough: make test-gpu's tests; given
+# LIMIT seconds (from the start of this script) leave it time enough: make test-gpu's tests; the view
+# noise's timing at 1 MP (its launches eagerly, and replayed as a CUDA graph); given
 # .gpu/bench, `bench train` of a whole stealth-splat-lite run on it with the attack and without;
 # ITERS steps of the carried capture three times (stealth-splat with its attack, without it, stock
 # splatfacto) and ns-eval of the attacked run. Everything is logged to $OUT/check.log as it happens.
@@ -72,6 +73,28 @@ if [ "$TESTS" != 0 ] && fits 130 "make test-gpu's tests"; then
     tail -15 "$OUT/tests.log"
     t tests-done
 fi
+
+# the view noise of a 1-MP image on the GPU: its ~118 launches run eagerly, and replayed as a CUDA graph
+fits 15 "the view noise's timing" && python3 - <<'PY'
+import time, torch
+from stealth_ns.attack import normal_draw
+image = torch.randint(0, 256, (756, 1008, 3), dtype=torch.uint8, device="cuda")
+def median_ms(noise):
+    for key in range(5):
+        noise(key)
+    torch.cuda.synchronize()
+    times = []
+    for key in range(100, 150):
+        start = time.perf_counter()
+        noise(key)
+        torch.cuda.synchronize()
+        times.append(time.perf_counter() - start)
+    return sorted(times)[25] * 1e3
+eager = median_ms(lambda key: normal_draw._noisy_uint8_on(image, 20.0, key))
+graphed = median_ms(lambda key: normal_draw.noisy_uint8(image, 20.0, key))
+print(f"view noise at 1008x756, median of 50: eager {eager:.3f} ms, CUDA graph {graphed:.3f} ms",
+      f"(graphs off: {normal_draw._noise_graphs_off or 'no'})")
+PY
 
 # bench train's whole stealth-splat-lite run (3000 steps, each timed) on the carried scene, attack on, off
 if [ "$BENCH" != 0 ] && [ -d .gpu/bench ]; then
