@@ -200,13 +200,15 @@ class _NoiseGraph:
         self.sigma = torch.zeros((), dtype=torch.float32, device=device)
         self.key = torch.zeros((), dtype=torch.int64, device=device)
         with torch.cuda.device(device):
-            side = torch.cuda.Stream()  # warm-up off the capture, as torch's CUDA-graph recipe does
+            side = torch.cuda.Stream()  # warm-up off the default stream, as torch's CUDA-graph recipe does
             side.wait_stream(torch.cuda.current_stream())
             with torch.cuda.stream(side):
                 _noisy_uint8_on(self.image, self.sigma, self.key)
             torch.cuda.current_stream().wait_stream(side)
             self.graph = torch.cuda.CUDAGraph()
-            with torch.cuda.graph(self.graph):
+            # captured on the warm-up's stream; "thread_local": other threads' CUDA calls (a data
+            # loader's pinned memory, say) do not break this thread's capture
+            with torch.cuda.graph(self.graph, stream=side, capture_error_mode="thread_local"):
                 self.out = _noisy_uint8_on(self.image, self.sigma, self.key)
 
     def __call__(self, image: torch.Tensor, sigma: float, key: int) -> torch.Tensor:
@@ -238,7 +240,7 @@ def _noisy_uint8_cuda(image: torch.Tensor, sigma: float, key: int) -> torch.Tens
     try:
         graph = _NoiseGraph(slot[0], image.device)
         same = bool(graph(image, sigma, key).equal(eager))
-    except RuntimeError as error:
+    except (RuntimeError, TypeError) as error:  # TypeError: a torch whose graph API lacks an argument
         _noise_graphs_off = f"capture failed: {error}".splitlines()[0]
     else:
         if same:
