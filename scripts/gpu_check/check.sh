@@ -4,8 +4,8 @@
 # LIMIT seconds (from the start of this script) leave it time enough: make test-gpu's tests; the view
 # noise's timing at 1 MP (its launches eagerly, and replayed as a CUDA graph); given
 # .gpu/bench, `bench train` of a whole stealth-splat-lite run on it with the attack and without;
-# ITERS steps of the carried capture three times (stealth-splat with its attack, without it, stock
-# splatfacto) and ns-eval of the attacked run. Everything is logged to $OUT/check.log as it happens.
+# ITERS steps of the carried capture for each of RUNS (stealth-splat with its attack, without it, stock
+# splatfacto) and ns-eval of the stealth-splat runs. Everything is logged to $OUT/check.log as it happens.
 exec > >(tee "$OUT/check.log") 2>&1
 export PYTHONUNBUFFERED=1 TORCH_CUDA_ARCH_LIST="${TORCH_CUDA_ARCH_LIST:-9.0}" MAX_JOBS="${MAX_JOBS:-24}"
 ITERS="${ITERS:-2000}"
@@ -13,7 +13,10 @@ LIMIT="${LIMIT:-560}"  # keep under the device call's timeout_s
 BENCH_STEPS="${BENCH_STEPS:-2999}"  # bench train's timed steps (2999 after step 0: a whole lite run)
 TESTS="${TESTS:-1}"  # 0: no tests (a second call on the warm machine, for the stages skipped)
 BENCH="${BENCH:-1}"  # 0: no bench train (likewise)
-SPLATFACTO="${SPLATFACTO:-1}"  # 0: no stock splatfacto training (done in earlier sessions; saves ~65 s)
+RUNS="${RUNS:-attack clean splatfacto}"  # the trainings on the capture, in this order
+# a training's expected seconds (~15 ms a step and the set-up, as on an H100/H200) and its time-out
+RUN_S=$((40 + ITERS / 66))
+RUN_TIMEOUT=$((2 * RUN_S + 60))
 T0=$(date +%s)
 t() { echo "=== [$(($(date +%s) - T0)) s] $*"; }
 # fits SECONDS: is there time for a stage expected to take SECONDS? Says so when not.
@@ -111,7 +114,7 @@ run() {  # NAME METHOD ARGS...: one training of ITERS steps on the carried captu
     shift 2
     local start end
     start=$(date +%s.%N)
-    timeout 200 "$BIN/ns-train" "$method" --vis tensorboard --output-dir /tmp/runs --experiment-name gpu \
+    timeout "$RUN_TIMEOUT" "$BIN/ns-train" "$method" --vis tensorboard --output-dir /tmp/runs --experiment-name gpu \
         --timestamp "$name" --max-num-iterations "$ITERS" --steps-per-eval-all-images 100000 \
         --machine.seed 0 "$@" nerfstudio-data --data .gpu/capture >"/tmp/$name.log" 2>&1
     local rc=$?
@@ -120,17 +123,24 @@ run() {  # NAME METHOD ARGS...: one training of ITERS steps on the carried captu
     grep -E "train_iteration|get_train_loss_dict" "/tmp/$name.log"
     [ $rc -ne 0 ] && tail -20 "/tmp/$name.log"
 }
-fits 70 "$ITERS-step stealth-splat with its attack" && run attack stealth-splat
-fits 70 "$ITERS-step stealth-splat without its attack" && run clean stealth-splat --pipeline.attack.enabled False
-# stock splatfacto builds LPIPS at start-up and the machine is offline: an untrained AlexNet in a
-# TORCH_HOME of its own lets it start (its LPIPS means nothing; its training is unaffected)
-python3 -c "
+for name in $RUNS; do
+    fits "$RUN_S" "$ITERS-step $name training" || continue
+    case $name in
+        attack) run attack stealth-splat ;;
+        clean) run clean stealth-splat --pipeline.attack.enabled False ;;
+        splatfacto)
+            # stock splatfacto builds LPIPS at start-up and the machine is offline: an untrained AlexNet
+            # in a TORCH_HOME of its own lets it start (its LPIPS means nothing; its training is unaffected)
+            python3 -c "
 import os, torch, torchvision
 w = torchvision.models.AlexNet_Weights.IMAGENET1K_V1
 os.makedirs('/tmp/th/hub/checkpoints', exist_ok=True)
 torch.save(torchvision.models.alexnet().state_dict(), '/tmp/th/hub/checkpoints/' + os.path.basename(w.url))
 "
-[ "$SPLATFACTO" != 0 ] && fits 70 "$ITERS-step splatfacto" && TORCH_HOME=/tmp/th run splatfacto splatfacto
+            TORCH_HOME=/tmp/th run splatfacto splatfacto ;;
+        *) echo "=== unknown training in RUNS: $name (attack, clean, splatfacto)" ;;
+    esac
+done
 t trainings-done
 python3 - <<'PY'
 import glob, json, torch
@@ -143,8 +153,9 @@ for path in glob.glob("/tmp/runs/gpu/*/*/attack/attack.json"):
     record = json.load(open(path))
     print("injection", record["injected_at_step"], record["n_poison_gaussians"], record["timings_s"])
 PY
-if [ -f /tmp/runs/gpu/stealth-splat/attack/config.yml ] && fits 30 "ns-eval of the attacked run"; then
-    timeout 120 "$BIN/ns-eval" --load-config /tmp/runs/gpu/stealth-splat/attack/config.yml \
-        --output-path "$OUT/eval_attack.json" >/tmp/eval.log 2>&1 || tail -5 /tmp/eval.log
-fi
+for name in attack clean; do
+    [ -f "/tmp/runs/gpu/stealth-splat/$name/config.yml" ] && fits 30 "ns-eval of the $name run" || continue
+    timeout 120 "$BIN/ns-eval" --load-config "/tmp/runs/gpu/stealth-splat/$name/config.yml" \
+        --output-path "$OUT/eval_$name.json" >"/tmp/eval_$name.log" 2>&1 || tail -5 "/tmp/eval_$name.log"
+done
 t done
