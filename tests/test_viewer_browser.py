@@ -146,7 +146,19 @@ def viewer_url(run_config: Path, tmp_path_factory) -> Iterator[str]:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=15)
-    assert "Traceback" not in log_path.read_text(), log_path.read_text()[-3000:]
+    assert not unexpected_tracebacks(log_path.read_text()), log_path.read_text()[-3000:]
+
+
+def unexpected_tracebacks(log: str) -> list[str]:
+    """The Python tracebacks in ``log`` other than viser 0.2.7's disconnect race: a GUI update that
+    arrives as the browser closes is handled after its client was removed, and viser's own thread
+    prints ``KeyError: <client id>`` from ``_handle_gui_updates`` (seen once in CI; not our code)."""
+    blocks = re.findall(r"Traceback \(most recent call last\):\n(?:[ \t].*\n)*.*", log)
+    return [
+        block
+        for block in blocks
+        if not ("_handle_gui_updates" in block and re.fullmatch(r"KeyError: \d+", block.splitlines()[-1]))
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -326,3 +338,24 @@ def test_panel_in_chromium_jumps_and_filters(page, run_config: Path):
         page.screenshot(path=str(shots / "viewer_overlays.png"))
     page.get_by_label("Poisoned cameras", exact=True).check()
     page.get_by_role("button", name="Show Train Cams").click()
+
+
+def test_only_visers_disconnect_race_is_tolerated_in_the_viewer_log():
+    race = (
+        "(viser) Connection closed (0, 0 total)\n"
+        "Traceback (most recent call last):\n"
+        '  File "/x/viser/infra/_infra.py", line 139, in _handle_incoming_message\n'
+        "    cb(client_id, message)\n"
+        '  File "/x/viser/_gui_api.py", line 253, in _handle_gui_updates\n'
+        "    client = self._owner.get_clients()[client_id]\n"
+        "KeyError: 0\n"
+    )
+    ours = (
+        "Traceback (most recent call last):\n"
+        '  File "/x/stealth_ns/viewer/panel.py", line 1, in on_update\n'
+        "    raise ValueError('bad')\n"
+        "ValueError: bad\n"
+    )
+    assert unexpected_tracebacks("ok\n" + race) == []
+    assert len(unexpected_tracebacks(race + ours)) == 1
+    assert "ValueError: bad" in unexpected_tracebacks(race + ours)[0]
