@@ -186,3 +186,14 @@ def test_without_the_extension_the_same_values(monkeypatch):
     without = (normal_deviates((5, 7, 3), 8), noisy_uint8(image, 20.0, 8))
     assert with_ext[0].shape == (5, 7, 3) and with_ext[0].dtype == torch.float32
     assert torch.equal(with_ext[0], without[0]) and torch.equal(with_ext[1], without[1])
+
+
+@pytest.mark.parametrize("key", [-1, 2**63, 2**64 - 1])
+def test_a_key_outside_the_int64_domain_is_refused_on_every_path(key):
+    # the compiled kernel and a CUDA graph take the key as an int64: refused alike, in one line, before
+    # either is reached (an out-of-range key once reached a CUDA graph's int64 fill and failed there)
+    image = torch.zeros((5, 7, 3), dtype=torch.uint8)
+    with pytest.raises(ValueError, match=r"noise stream key must be in \[0, 2\^63\), got"):
+        noisy_uint8(image, 3.0, key)
+    with pytest.raises(ValueError, match=r"noise stream key must be in \[0, 2\^63\), got"):
+        normal_draw.normal_deviates((4,), key)

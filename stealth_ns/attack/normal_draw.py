@@ -271,6 +271,13 @@ def noisy_uint8_reference(image: np.ndarray, sigma: float, key: int) -> np.ndarr
     return np.clip(np.rint(image.astype(_F) + _F(sigma) * z), 0, 255).astype(np.uint8)
 
 
+def _check_key(key: int) -> None:
+    """Raise ValueError unless ``key`` is a stream key, ``0 <= key < 2^63``: the compiled kernel and a CUDA
+    graph take it as an int64 (``noise_schedule.noise_seed`` draws keys there)."""
+    if not 0 <= key < 1 << 63:
+        raise ValueError(f"a noise stream key must be in [0, 2^63), got {key}")
+
+
 def _extension() -> Any:
     """The compiled module, or None where it is unavailable."""
     from stealth_ns.raster.cpp_backend import load_extension
@@ -284,6 +291,7 @@ def normal_deviates(shape: tuple[int, ...], key: int, device: Any = "cpu") -> to
     extension is built, the numpy reference otherwise. The same values everywhere."""
     import torch
 
+    _check_key(key)
     device = torch.device(device)
     count = int(np.prod(shape, dtype=np.int64))
     if device.type == "cuda":
@@ -304,6 +312,7 @@ def noisy_uint8(image: torch.Tensor, sigma: float, key: int) -> torch.Tensor:
     in)."""
     import torch
 
+    _check_key(key)
     if image.device.type == "cuda":
         return _noisy_uint8_cuda(image, sigma, key)
     ext = _extension()
