@@ -189,7 +189,7 @@ def test_without_the_extension_the_same_values(monkeypatch):
 
 
 @pytest.mark.parametrize("key", [-1, 2**63, 2**64 - 1])
-def test_a_key_outside_the_int64_domain_is_refused_on_every_path(key):
+def test_a_key_outside_its_domain_is_refused_on_every_path(key):
     # the compiled kernel and a CUDA graph take the key as an int64: refused alike, in one line, before
     # either is reached (an out-of-range key once reached a CUDA graph's int64 fill and failed there)
     image = torch.zeros((5, 7, 3), dtype=torch.uint8)
