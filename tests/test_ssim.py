@@ -65,10 +65,11 @@ def _whole_map_ssim(x, y, win, C1, C2):
     return torch.stack(planes).float()
 
 
-@pytest.mark.parametrize("shape", [(1, 3, 75, 50), (1, 2, 33, 12)])
+@pytest.mark.parametrize("shape", [(1, 3, 75, 50), (1, 2, 33, 12), (1, 3, 150, 37), (2, 3, 40, 24)])
 def test_fused_kernel_gives_the_bits_of_whole_map_filters_for_any_thread_count(shape):
-    """Rows are filtered in blocks of 32 per task (heights not a multiple of it, and a block of one
-    output row): the values are those of filtering whole maps, with 1 or 2 threads."""
+    """Rows are filtered in blocks of 64 per task (heights not a multiple of it, a block of one output
+    row, three blocks; the planes' sums four at a time and the two left): the values are those of
+    filtering whole maps, with 1 or 2 threads."""
     from pytorch_msssim.ssim import _fspecial_gauss_1d
 
     ext = cpp_backend.load_extension()
