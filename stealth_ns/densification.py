@@ -11,6 +11,11 @@ is bitwise the same (``tests/test_densification.py`` checks it against gsplat's)
 ``densify_stats`` (``raster/csrc/densify_cpu.cpp``) does the same in one pass over the Gaussians,
 bitwise equal to that reference: 0.24 instead of 0.76 ms at 70k Gaussians with 2 threads (the
 benchmark's densification phase: 0.99 -> 0.27 ms per step).
+
+Growing and pruning (gsplat's ``_grow_gs`` and ``_prune_gs``, every ``refine_every`` steps) run their
+PyTorch ops on one thread (:func:`stealth_ns.thread_invariant.one_thread`): their ``exp`` and
+``sigmoid`` over all Gaussians would otherwise give values, and so new Gaussians, that depend on the
+thread count.
 """
 
 from __future__ import annotations
@@ -21,11 +26,22 @@ from typing import Any
 import torch
 from gsplat.strategy import DefaultStrategy
 
+from stealth_ns.thread_invariant import one_thread
+
 __all__ = ["DenseStatisticsStrategy", "accumulate_statistics"]
 
 
 class DenseStatisticsStrategy(DefaultStrategy):
-    """gsplat's default densification strategy; only the per-step statistics update differs."""
+    """gsplat's default densification strategy; the per-step statistics update differs, and growing
+    and pruning run on one thread (see the module docstring)."""
+
+    def _grow_gs(self, *args: Any, **kwargs: Any) -> tuple[int, int]:
+        with one_thread():
+            return super()._grow_gs(*args, **kwargs)
+
+    def _prune_gs(self, *args: Any, **kwargs: Any) -> int:
+        with one_thread():
+            return super()._prune_gs(*args, **kwargs)
 
     @torch.no_grad()
     def _update_state(

@@ -53,6 +53,7 @@ from nerfstudio.utils.colors import get_color
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor
 
+from stealth_ns import thread_invariant
 from stealth_ns.densification import DenseStatisticsStrategy
 from stealth_ns.errors import StealthNSError
 from stealth_ns.gaussian_init import initial_colours, object_box
@@ -494,8 +495,8 @@ class StealthSplatModel(LossesAndMetrics, SplatfactoModel):
         return rasterization(
             means=g["means"],
             quats=g["quats"],
-            scales=torch.exp(g["scales"]),
-            opacities=torch.sigmoid(g["opacities"]).squeeze(-1),
+            scales=thread_invariant.exp(g["scales"]),
+            opacities=thread_invariant.sigmoid(g["opacities"]).squeeze(-1),
             colors=colors,
             viewmats=viewmat,
             Ks=K,
@@ -550,7 +551,7 @@ class StealthSplatModel(LossesAndMetrics, SplatfactoModel):
             sh_degree = min(self.step // self.config.sh_degree_interval, self.config.sh_degree)
             colors = (g["features_dc"], g["features_rest"])  # split: the compiled kernels read it as stored
         else:
-            colors = torch.sigmoid(g["features_dc"])
+            colors = thread_invariant.sigmoid(g["features_dc"])
             sh_degree = None
         render, alpha, self.info = self._rasterize(g, colors, sh_degree, viewmat, K, (W, H), render_mode)
         if self.training:

@@ -24,6 +24,7 @@ from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttrib
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from stealth_ns import thread_invariant
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.illusion import (
     BUILTIN_ILLUSIONS,
@@ -442,7 +443,7 @@ class StealthPipeline(VanillaPipeline):
         if self.support_views:
             supports = [self.cameras_with_depth(self.support_views[v.index]) for v in self.poison_views]
         means = self.model.means.detach().cpu().numpy()
-        opacities = torch.sigmoid(self.model.opacities.detach()).squeeze(-1).cpu().numpy()
+        opacities = thread_invariant.sigmoid(self.model.opacities.detach()).squeeze(-1).cpu().numpy()
         return place_poison(
             means,
             opacities,

@@ -919,7 +919,7 @@ def test_demo_reuses_finished_runs_and_rewrites_the_report(tmp_path, monkeypatch
         reports.append((Path(poisoned).parent.name, Path(clean).parent.name, output))
         return {"fake": True}
 
-    scene = tmp_path / "scene-orbit"
+    scene = tmp_path / f"scene-{demo.DEMO_PRESET}"
     scene.mkdir()
     (scene / "transforms.json").write_text("{}")  # the demo only generates a missing scene
     monkeypatch.setattr(runs, "run_command", training)
