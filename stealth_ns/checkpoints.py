@@ -4,16 +4,22 @@ nerfstudio picks the latest checkpoint by parsing every name in the folder (a st
 ``ValueError``), asserts that it exists and lets ``torch.load`` raise on a truncated file. Training
 (``--load-dir`` / ``--load-checkpoint``, :mod:`stealth_ns.trainer`) and every command that loads a run
 (:func:`stealth_ns.safe_config.safe_eval_setup`, the imported models, the pruned runs of the defences)
-go through these two functions instead.
+go through these two functions instead. ns-train's checkpoints are written by :func:`save_checkpoint`,
+whole or not at all. One training at a time writes a run folder, and none writes into another run's
+(:func:`claim_run_folder`), and a resume is refused a checkpoint of another model shape
+(:func:`shape_mismatch`, naming the options that differ: :func:`option_changes`).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import re
 from pathlib import Path
 from typing import Any
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.json_io import atomic_path
 
 _NAME = re.compile(r"^step-(\d+)\.ckpt$")
 #: What every checkpoint holds (a defence's pruned run writes only these).
@@ -74,6 +80,46 @@ def read_checkpoint(path: Path, keys: tuple[str, ...] = MODEL_KEYS) -> dict[str,
     return state
 
 
+class _WriteRecorder:
+    """A file's ``write`` that keeps the OSError it raised: torch.save reports a failed write as a
+    RuntimeError of its zip writer ("unexpected pos ..."), without the errno."""
+
+    def __init__(self, file: Any) -> None:
+        self.file, self.error = file, None
+
+    def write(self, data: Any) -> int:
+        try:
+            return self.file.write(data)
+        except OSError as err:
+            self.error = err
+            raise
+
+    def flush(self) -> None:
+        self.file.flush()
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> Path:
+    """``torch.save`` of ``state`` to ``path`` through a temporary file beside it
+    (:func:`~stealth_ns.json_io.atomic_path`, a name :func:`checkpoint_steps` does not read): a save cut
+    short (a full disk) leaves no ``step-N.ckpt``, only the checkpoints there were before.
+
+    Raises:
+        StealthNSError: ``cannot write PATH: No space left on device`` (the failed write's reason).
+    """
+    import torch
+
+    path = Path(path)
+    with atomic_path(path) as tmp, tmp.open("wb") as f:
+        out = _WriteRecorder(f)
+        try:
+            torch.save(state, out)
+        except RuntimeError:
+            if out.error is None:
+                raise
+            raise out.error from None
+    return path
+
+
 def checkpoint_mismatch(
     saved: dict[str, Any], attack: dict[str, Any] | None, images: dict[str, Any], resuming: bool
 ) -> str | None:
@@ -126,3 +172,152 @@ def checkpoint_mismatch(
         advice = "resume it with the options it was trained with" if resuming else elsewhere
         return f"its attack had other options: {said}; {advice}"
     return None
+
+
+# ---------------------------------------------------------------------------------- one run per folder
+#: The file in a run folder that ns-train locks while it trains there (it holds the process id).
+LOCK_FILE = ".ns-train.lock"
+_HELD: dict[Path, int] = {}  # lock file -> open descriptor, held until this process ends
+
+
+def _in_use(folder: Path, pid: str) -> StealthNSError:
+    return StealthNSError(
+        f"the run folder {folder} is in use by another training (process {pid or '?'}): give this one "
+        "another --timestamp (or --experiment-name, --output-dir)"
+    )
+
+
+def lock_run_folder(folder: Path) -> None:
+    """Hold an exclusive lock (``flock``) on ``folder``'s :data:`LOCK_FILE` until this process ends;
+    a process that holds it already keeps it. StealthNSError naming the process that holds it.
+
+    Where the file system has no locks (some network mounts, Windows) nothing is locked, and
+    :func:`run_folder_conflict` alone keeps two runs apart once one has written its config.
+    """
+    try:
+        import fcntl
+    except ImportError:
+        return
+    lock = Path(folder) / LOCK_FILE
+    held = _HELD.pop(lock, None)
+    if held is not None:
+        try:
+            same = os.path.samestat(os.fstat(held), os.stat(lock))
+        except OSError:  # the folder was removed and made again in this process
+            same = False
+        if same:
+            _HELD[lock] = held
+            return
+        os.close(held)
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        pid = os.pread(fd, 20, 0).decode(errors="replace").strip()
+        os.close(fd)
+        raise _in_use(folder, pid) from None
+    except OSError:  # no locks on this file system
+        os.close(fd)
+        return
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, str(os.getpid()).encode(), 0)
+    _HELD[lock] = fd
+
+
+def run_folder_holder(folder: Path) -> str | None:
+    """The process id of another process training in ``folder`` (holding its lock), else None; nothing
+    is written."""
+    lock = Path(folder) / LOCK_FILE
+    if lock in _HELD or not lock.is_file():
+        return None
+    try:
+        import fcntl
+
+        fd = os.open(lock, os.O_RDONLY)
+    except (ImportError, OSError):
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return os.pread(fd, 20, 0).decode(errors="replace").strip() or "?"
+    except OSError:
+        return None
+    finally:
+        os.close(fd)  # a lock it took goes with it
+    return None
+
+
+def claim_run_folder(folder: Path, resume_from: Path | None) -> None:
+    """Make ``folder`` this training's run folder until the process ends (:func:`lock_run_folder`), or
+    StealthNSError with one line when another training holds it or it holds another run
+    (:func:`run_folder_conflict`), in which case nothing is written there."""
+    why = run_folder_conflict(folder, resume_from)
+    if why is not None:
+        pid = run_folder_holder(folder)
+        raise StealthNSError(why) if pid is None else _in_use(folder, pid)
+    lock_run_folder(folder)
+    why = run_folder_conflict(folder, resume_from)  # another training's, written before this one locked
+    if why is not None:
+        raise StealthNSError(why)
+
+
+def run_folder_conflict(folder: Path, resume_from: Path | None) -> str | None:
+    """Why training into the run folder ``folder`` would mix two runs, or None: it holds a run's
+    ``config.yml`` or checkpoints and this training is not that run resumed (``resume_from``: the
+    ``--load-dir`` folder or ``--load-checkpoint`` file, None for a fresh start)."""
+    folder = Path(folder)
+    held = [p.name for p in [folder / "config.yml"] if p.is_file()]
+    held += [
+        f"nerfstudio_models/{p.name}"
+        for _, p in sorted(checkpoint_steps(folder / "nerfstudio_models").items())
+    ]
+    if not held:
+        return None
+    if resume_from is not None and Path(os.path.realpath(resume_from)).is_relative_to(
+        os.path.realpath(folder)
+    ):
+        return None
+    shown = ", ".join(held[:3]) + (f" and {len(held) - 3} more" if len(held) > 3 else "")
+    return (
+        f"the run folder {folder} already holds a run ({shown}): a second run there would mix its files "
+        f"with that one's; give this one another --timestamp (or --experiment-name, --output-dir), or "
+        f"continue that run with --load-dir {folder / 'nerfstudio_models'}"
+    )
+
+
+# ---------------------------------------------------------------------------------- resuming another model
+def _shape(shape: tuple[int, ...], rows: bool) -> str:
+    return "[" + ", ".join(["N", *map(str, shape[1:])] if rows else map(str, shape)) + "]"
+
+
+def shape_mismatch(saved: dict[str, Any], current: dict[str, Any]) -> str | None:
+    """How a tensor of a checkpoint's pipeline state ``saved`` differs in shape from the model's state
+    ``current`` (the number of Gaussians, the rows of ``gauss_params``, aside), or None. Tensors only one
+    of them has are left to nerfstudio, which loads the rest."""
+    for key in sorted(saved.keys() & current.keys()):
+        old, new = getattr(saved[key], "shape", None), getattr(current[key], "shape", None)
+        if old is None or new is None:
+            continue
+        old, new, rows = tuple(old), tuple(new), ".gauss_params." in f".{key}"
+        if (old[1:], len(old)) != (new[1:], len(new)) or (not rows and old != new):
+            name = key.removeprefix("_model.")
+            return f"its {name} is {_shape(old, rows)}, this run's {_shape(new, rows)}"
+    return None
+
+
+def option_changes(saved: Any, current: Any, prefix: str) -> list[str]:
+    """``PREFIX.OPTION OLD (now NEW)`` for each option of the dataclass ``current`` (nested ones by
+    their own options) whose value differs in ``saved``, as ns-train spells the flags."""
+    changes = []
+    for field in dataclasses.fields(current):
+        if field.name.startswith("_"):
+            continue
+        old, new = getattr(saved, field.name, None), getattr(current, field.name)
+        if old == new:
+            continue
+        flag = f"{prefix}.{field.name.replace('_', '-')}"
+        if dataclasses.is_dataclass(new) and type(old) is type(new):
+            changes += option_changes(old, new, flag)
+        else:
+            changes.append(f"{flag} {old!r} (now {new!r})")
+    return changes

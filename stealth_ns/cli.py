@@ -1,7 +1,7 @@
 """`stealth-ns` console script: tyro subcommands.
 
-Every subcommand raises :class:`StealthNSError` for bad input; ``entrypoint`` prints it as
-one line (``stealth-ns: error: ...``) and exits with status 2, never a traceback.
+Every subcommand raises :class:`StealthNSError` for bad input; ``entrypoint`` prints it (and a write
+the environment refused) as one line (``stealth-ns: error: ...``), exit status 2, never a traceback.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import tyro
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.difficulty.rank import RankViews
-from stealth_ns.errors import StealthNSError
+from stealth_ns.errors import StealthNSError, environment_error
 from stealth_ns.output_folder import check_file_writable
 from stealth_ns.poisoning.config import IPAConfig
 from stealth_ns.scan.config import ScanConfig
@@ -62,7 +62,7 @@ class MakeScene:
 
 @dataclass
 class Demo:
-    """Generate the orbit scene, train stealth-splat-lite on it, evaluate, and print the numbers."""
+    """Generate the facing scene, train stealth-splat-lite on it clean and poisoned, and print the report."""
 
     output: Path = Path("demo-output")
     """Folder for the scene, the runs and the logs."""
@@ -314,11 +314,11 @@ class SeedPoints:
 
 @dataclass
 class CheckData:
-    """Check a nerfstudio-data or COLMAP dataset (files, images, poses, intrinsics, seed points) first."""
+    """Check a nerfstudio-data, COLMAP or Blender dataset (files, images, poses, intrinsics, seed points)."""
 
     data: Path
-    """nerfstudio-data folder (transforms.json), a transforms JSON file, or a COLMAP folder (sparse/0,
-    images/)."""
+    """nerfstudio-data folder (transforms.json), a transforms JSON file, a COLMAP folder (sparse/0,
+    images/) or a Blender folder (transforms_train/val/test.json)."""
 
     def main(self) -> None:
         from stealth_ns.dataset_check import check_dataset
@@ -371,6 +371,9 @@ class BenchScan:
     options: Annotated[ScanConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ScanConfig)
 
     def main(self) -> None:
+        from stealth_ns.bench.scan_runs import check_arguments
+
+        check_arguments(self.runs, self.output, self.options, self.only, self.as_ply)  # before torch loads
         from stealth_ns.bench.scan_table import TABLE_FILE, run_bench_scan
 
         run_bench_scan(self.runs, self.output, self.options, self.only, self.as_ply)
@@ -580,8 +583,11 @@ def _command_prefixes() -> set[str]:
 def entrypoint() -> None:
     try:
         main()
-    except StealthNSError as err:
-        print(f"stealth-ns: error: {err}", file=sys.stderr)
+    except (StealthNSError, OSError) as err:  # OSError: a write the environment refused (full disk)
+        line = err if isinstance(err, StealthNSError) else environment_error(err)
+        if line is None:
+            raise
+        print(f"stealth-ns: error: {line}", file=sys.stderr)
         sys.exit(2)
     except KeyboardInterrupt:
         print("stealth-ns: interrupted", file=sys.stderr)

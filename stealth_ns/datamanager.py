@@ -55,23 +55,28 @@ class NoiseSpec:
     seed: int
 
 
-def check_nerfstudio_data(config: FullImageDatamanagerConfig | None) -> None:
-    """Stop with one line (file and frame) if a nerfstudio-data or COLMAP dataset is broken, before
-    nerfstudio's parser meets the problem as a traceback (:mod:`stealth_ns.dataset_check`)."""
+def check_nerfstudio_data(config: FullImageDatamanagerConfig | None, eval_split: str = "val") -> None:
+    """Stop with one line (file and frame) if a nerfstudio-data, COLMAP or Blender dataset is broken,
+    before nerfstudio's parser meets the problem as a traceback (:mod:`stealth_ns.dataset_check`);
+    ``eval_split``: the split nerfstudio evaluates on (Blender reads ``transforms_{eval_split}.json``)."""
+    from nerfstudio.data.dataparsers.blender_dataparser import BlenderDataParserConfig
     from nerfstudio.data.dataparsers.colmap_dataparser import ColmapDataParserConfig
     from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 
-    from stealth_ns.dataset_check import check_colmap, check_dataset
+    from stealth_ns.dataset_check import check_blender, check_colmap, check_dataset
     from stealth_ns.errors import StealthNSError, fail
 
     dataparser = getattr(config, "dataparser", None)
     if getattr(dataparser, "data", None) is None:
         return
+    data = Path(dataparser.data)
     try:
         if isinstance(dataparser, NerfstudioDataParserConfig):
-            check_dataset(Path(dataparser.data), downscale_factor=dataparser.downscale_factor)
+            check_dataset(data, downscale_factor=dataparser.downscale_factor, dataparser="nerfstudio-data")
         elif isinstance(dataparser, ColmapDataParserConfig):
-            check_colmap(Path(dataparser.data), str(dataparser.colmap_path), str(dataparser.images_path))
+            check_colmap(data, str(dataparser.colmap_path), str(dataparser.images_path))
+        elif isinstance(dataparser, BlenderDataParserConfig):
+            check_blender(data, ("train", eval_split), ply=dataparser.ply_path)
     except StealthNSError as err:
         fail(err)
 
@@ -96,8 +101,9 @@ class StealthDataManager(FullImageDatamanager):
 
     def __init__(self, *args, **kwargs) -> None:
         config = kwargs.get("config", args[0] if args else None)
-        if kwargs.get("test_mode", args[2] if len(args) > 2 else "val") != "inference":
-            check_nerfstudio_data(config)
+        test_mode = kwargs.get("test_mode", args[2] if len(args) > 2 else "val")
+        if test_mode != "inference":
+            check_nerfstudio_data(config, "test" if test_mode == "test" else "val")
         super().__init__(*args, **kwargs)
         self.poison_targets: dict[int, Tensor] = {}
         self.noise: NoiseSpec | None = None

@@ -10,35 +10,52 @@ frame's, as in nerfstudio) are sane; each frame's image -- ``images_N/NAME`` at 
 chosen as nerfstudio does -- decodes at the camera's size (nerfstudio, like COLMAP, ignores EXIF
 orientation: a JPEG that fits only once turned as its tag says is refused and said so); the split
 lists name frames; the seed points are usable (:func:`check_seed_points`). A COLMAP folder is read
-with pycolmap (:func:`check_colmap`). Raises :class:`~stealth_ns.errors.StealthNSError` with one
-line for the first problem. The datamanager runs it at start-up (``ns-train``) and
-``stealth-ns check-data --data DIR`` runs it on demand.
+with pycolmap (:func:`check_colmap`; a model not where ``--colmap-path`` says is looked for in the
+folder, and the flag that reads it named), a Blender folder as blender-data reads it
+(:func:`check_blender`). Raises :class:`~stealth_ns.errors.StealthNSError` with one line for the first
+problem. The datamanager runs it at start-up (``ns-train``, with the dataparser it was given) and
+``stealth-ns check-data --data DIR`` runs it on demand. The seed-point and path rules are
+:mod:`stealth_ns.datasets.seed_check` and :mod:`stealth_ns.datasets.references`.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from stealth_ns.datasets.references import (
+    Origins,
+    check_frame_references,
+    check_reference,
+    check_references,
+    leaves,
+    read_json_object,
+)
+from stealth_ns.datasets.seed_check import (
+    MAX_POINT_DISTANCE,
+    MIN_SEED_POINTS,
+    camera_spread,
+    check_ply,
+    check_seed_points,
+    ply_vertex_count,
+)
 from stealth_ns.errors import StealthNSError
 from stealth_ns.image_io import image_size, read_image
 
 __all__ = [
-    "DatasetSummary", "check_colmap", "check_dataset", "check_references", "check_seed_points",
-    "ply_vertex_count", "read_json_object", "transforms_path",
+    "MAX_POINT_DISTANCE", "MIN_SEED_POINTS", "DatasetSummary", "check_blender", "check_colmap",
+    "check_dataset", "check_references", "check_seed_points", "ply_vertex_count", "read_json_object",
+    "transforms_path",
 ]  # fmt: skip
 
 INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 """Camera parameters nerfstudio-data needs, globally or in every frame."""
 DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
 SPLITS = ("train", "val", "test")
-FRAME_FILE_KEYS = ("file_path", "depth_file_path", "mask_path")  # a frame's files
 CAMERA_MODELS = (
     "SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "OPENCV_FISHEYE", "EQUIRECTANGULAR",
     "OMNIDIRECTIONALSTEREO_L", "OMNIDIRECTIONALSTEREO_R", "VR180_L", "VR180_R", "ORTHOPHOTO", "FISHEYE624",
@@ -50,19 +67,8 @@ MAX_INTRINSIC_RATIO = 1000.0
 """A focal length above this many times the image's larger side (a field of view under 0.06 degrees),
 or below its 1/this (a pinhole view of 179.9 degrees), or a principal point further than this many
 image sizes away, is no lens: it is a typo or an overflow (``fl_x`` 1e308 is inf in float32)."""
-MIN_SEED_POINTS = 4
-"""A Gaussian's first size is the mean distance to its 3 nearest seed points (splatfacto, which
-raises with fewer points), and the density-guided injection voxelises the cloud's bounding box."""
-MAX_POINT_DISTANCE = 1e6
-"""Seed points further than this many times the cameras' spread (the largest distance of a camera
-from their mean; nerfstudio scales it to about 1) from the cameras' mean are absurd: float32, in
-which nerfstudio loads and trains them, has steps of 0.06 spreads there, and one such point
-stretches the attack's density grid (over the cloud's bounding box) 1e6 times past the scene. Far
-backgrounds of real captures are within 1e3 spreads; coordinates far from the origin (UTM, in
-metres) are fine when the cameras are there too."""
 _EXIF_TURNS = {5: "mirror, turn 270 degrees", 6: "turn 90 degrees", 7: "mirror, turn 90 degrees",
                8: "turn 270 degrees"}  # fmt: skip
-_ORIGIN_FILES = ("transforms.json", "transforms_train.json", "transforms_val.json", "transforms_test.json")
 
 
 @dataclass(frozen=True)
@@ -80,17 +86,21 @@ class DatasetSummary:
     splits: dict[str, int]
     model: str | None = None
     """COLMAP: the model folder, relative to :attr:`transforms`; None for nerfstudio-data."""
+    blender: bool = False
+    """A Blender folder (:attr:`transforms` is the folder; :attr:`splits` counts each split's frames)."""
 
     def __str__(self) -> str:
         sizes = ", ".join(f"{w}x{h}" for w, h in self.sizes)
         splits = ", ".join(f"{n} {name}" for name, n in self.splits.items()) or "no split lists"
         if self.ply is None:
-            points = "no seed points (no ply_file_path)"
+            points = f"no seed points (no {'--ply-path' if self.blender else 'ply_file_path'})"
         else:
             points = f"{self.n_points} seed points in {self.ply.name}"
         head = f"Dataset OK: {self.transforms}"
         if self.model is not None:
             head += f" (COLMAP model {self.model})"
+        if self.blender:
+            head += " (Blender)"
         return (
             f"{head}\n  {self.n_frames} frames ({sizes}), {splits}; {points}; "
             "every image decodes, every pose is finite"
@@ -101,23 +111,6 @@ def transforms_path(data: Path) -> Path:
     """The transforms file of a nerfstudio-data folder, or ``data`` itself when it is a JSON file."""
     data = Path(data).expanduser()
     return data if data.suffix == ".json" else data / "transforms.json"
-
-
-def read_json_object(path: Path) -> dict[str, Any]:
-    """A transforms file's JSON object; StealthNSError naming the file if it is not one."""
-    try:
-        meta = json.loads(Path(path).read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise StealthNSError(f"{path} is not a text (JSON) file") from None
-    except json.JSONDecodeError as err:
-        raise StealthNSError(
-            f"{path} is not valid JSON: {err.msg} at line {err.lineno} column {err.colno}"
-        ) from None
-    except OSError as err:
-        raise StealthNSError(f"cannot read {path}: {err.strerror or type(err).__name__}") from None
-    if not isinstance(meta, dict):
-        raise StealthNSError(f"{path} must hold a JSON object, got a {type(meta).__name__}")
-    return meta
 
 
 def _load(path: Path) -> dict[str, Any]:
@@ -146,113 +139,6 @@ def _check_image(path: Path, where: str, decode: bool) -> tuple[int, int]:
         return image_size(path, what)
     image = read_image(path, what)
     return int(image.shape[1]), int(image.shape[0])
-
-
-def ply_vertex_count(path: Path) -> int:
-    """Points in a PLY file, from its header; StealthNSError naming the file if it is no PLY."""
-    try:
-        with open(path, "rb") as f:
-            if f.readline().strip() != b"ply":
-                raise StealthNSError(f"seed-point file {path} is not a PLY file")
-            for _ in range(200):
-                line = f.readline()
-                if not line or line.strip() == b"end_header":
-                    break
-                parts = line.split()
-                if parts[:2] == [b"element", b"vertex"] and len(parts) == 3 and parts[2].isdigit():
-                    return int(parts[2])
-    except OSError as err:
-        raise StealthNSError(f"seed-point file {path} cannot be read: {err.strerror}") from None
-    raise StealthNSError(f"seed-point file {path} has no vertex element in its header")
-
-
-# ---------------------------------------------------------------------------------- paths
-def _real(path: Path) -> Path:
-    return Path(os.path.realpath(path))
-
-
-class _Origins:
-    """The files other datasets on this machine declare as their own, by key.
-
-    A seeded copy (``stealth-ns seed-points --output``) names the images, depths and masks of the
-    dataset it was made from (``../ds/images/0001.png``, or by an absolute path), and seed-points
-    marks it in no other way. So a file outside the dataset folder is accepted only when
-    a dataset folder holding it (an ancestor folder with a nerfstudio-data or Blender transforms
-    file) names it under the same key as a frame's file: what a seeded copy names, and never
-    ``/etc/passwd``, a private photo no dataset lists, or a depth that is another dataset's image.
-    """
-
-    def __init__(self) -> None:
-        self._declared: dict[Path, dict[str, set[Path]]] = {}
-        self._transforms: dict[Path, list[Path]] = {}
-
-    def declares(self, file: Path, key: str) -> bool:
-        """Whether a dataset folder above the (resolved) ``file`` names it as a frame's ``key``."""
-        for folder in file.parents:
-            if folder not in self._transforms:
-                self._transforms[folder] = [folder / n for n in _ORIGIN_FILES if (folder / n).is_file()]
-            if any(file in self._files(t)[key] for t in self._transforms[folder]):
-                return True
-        return False
-
-    def _files(self, transforms: Path) -> dict[str, set[Path]]:
-        if transforms not in self._declared:
-            files: dict[str, set[Path]] = {key: set() for key in FRAME_FILE_KEYS}
-            try:
-                frames = read_json_object(transforms).get("frames")
-            except StealthNSError:
-                frames = None
-            blender = transforms.name != "transforms.json"
-            for frame in frames if isinstance(frames, list) else []:
-                for key in FRAME_FILE_KEYS:
-                    value = frame.get(key) if isinstance(frame, dict) else None
-                    if isinstance(value, str) and value:
-                        if blender and key == "file_path" and not Path(value).suffix:
-                            value += ".png"  # as nerfstudio's blender parser and seed-points read it
-                        files[key].add(_real(transforms.parent / value))
-            self._declared[transforms] = files
-        return self._declared[transforms]
-
-
-def _check_reference(root: Path, value: Any, where: str, key: str, origins: _Origins | None) -> None:
-    """StealthNSError unless ``root / value`` is inside ``root`` (links resolved) or, with ``origins``,
-    a file another dataset declares under ``key``."""
-    if not isinstance(value, str) or not value.strip():
-        raise StealthNSError(f"{where}: {key} must be a file path (a non-empty string), got {value!r}")
-    leaves = _leaves(root, root / value)
-    if leaves is not None and not (origins is not None and origins.declares(_real(root / value), key)):
-        raise StealthNSError(f"{where}: {key} {value!r} leaves the dataset folder {root}{leaves}")
-
-
-def _leaves(root: Path, path: Path) -> str | None:
-    """None when ``path`` is inside ``root`` with links resolved, else how it leaves (a link or not)."""
-    real = _real(path)
-    if real.is_relative_to(_real(root)):
-        return None
-    lexical = Path(os.path.normpath(os.path.abspath(path)))
-    return f" (a symbolic link to {real})" if lexical.is_relative_to(os.path.abspath(root)) else ""
-
-
-def _check_frame_references(path: Path, i: int, frame: dict[str, Any], origins: _Origins) -> None:
-    for key in FRAME_FILE_KEYS:
-        if key in frame:
-            where = f"{path}: frame {i}" + ("" if key == "file_path" else f" ({frame.get('file_path')})")
-            _check_reference(path.parent, frame[key], where, key, origins)
-
-
-def check_references(path: Path, meta: dict[str, Any]) -> None:
-    """StealthNSError with one line for the first file the transforms file ``path`` (holding ``meta``)
-    names outside its folder: a frame's ``file_path``, ``depth_file_path`` or ``mask_path`` (unless
-    another dataset declares it, see :class:`_Origins`), the ``ply_file_path`` or a top-level
-    ``mask_path`` (always inside). Links are resolved before comparing."""
-    origins = _Origins()
-    frames = meta.get("frames")
-    for i, frame in enumerate(frames if isinstance(frames, list) else []):
-        if isinstance(frame, dict):
-            _check_frame_references(path, i, frame, origins)
-    for key in ("ply_file_path", "mask_path"):
-        if meta.get(key) is not None:
-            _check_reference(path.parent, meta[key], str(path), key, None)
 
 
 # ---------------------------------------------------------------------------------- cameras
@@ -305,19 +191,6 @@ def _check_distortion(path: Path, meta: dict[str, Any], frame: dict[str, Any], w
     params = source.get("distortion_params")
     if params is not None and not (isinstance(params, list) and all(_finite(v) for v in params)):
         raise StealthNSError(f"{at}: distortion_params must be a list of finite numbers, got {params!r}")
-
-
-def _camera_spread(positions: np.ndarray, what: str) -> tuple[np.ndarray, float]:
-    """The cameras' mean position and spread (largest distance from it) for ``positions`` [C, 3];
-    StealthNSError if they all are at one position (nerfstudio divides by the spread)."""
-    centre = positions.mean(axis=0)
-    spread = float(np.linalg.norm(positions - centre, axis=1).max())
-    if spread <= 1e-6 * max(1.0, float(np.abs(centre).max())):
-        raise StealthNSError(
-            f"{what}: every frame's camera is at the same position ({_xyz(positions[0])}): nerfstudio "
-            "scales the scene by how far apart the cameras are"
-        )
-    return centre, spread
 
 
 def _check_matrix(matrix: Any, where: str) -> None:
@@ -395,74 +268,6 @@ def _check_frame_image(
     return size
 
 
-# ---------------------------------------------------------------------------------- seed points
-def _xyz(p: np.ndarray) -> str:
-    return ", ".join(f"{float(v):.6g}" for v in p)
-
-
-def check_seed_points(
-    xyz: np.ndarray, what: str, centre: np.ndarray, spread: float, hint: str = "", ids: Any = None
-) -> None:
-    """StealthNSError naming ``what`` for a seed cloud ``xyz`` [N, 3] training cannot start from: no
-    points, a non-finite one, fewer than :data:`MIN_SEED_POINTS`, all at one position, or one further
-    than :data:`MAX_POINT_DISTANCE` times the cameras' ``spread`` from their ``centre``. A point is
-    named by its index, or ``point3D ID`` from ``ids`` (COLMAP)."""
-
-    def point(k: int) -> str:
-        return f"point {k}" if ids is None else f"point3D {ids[k]}"
-
-    n = len(xyz)
-    if n == 0:
-        raise StealthNSError(f"{what} has no points{hint}")
-    bad = np.flatnonzero(~np.isfinite(xyz).all(axis=1))
-    if bad.size:
-        raise StealthNSError(
-            f"{what}: {point(bad[0])} is ({_xyz(xyz[bad[0]])}), not a finite position "
-            f"({bad.size} such point{'s' * (bad.size != 1)})"
-        )
-    if n < MIN_SEED_POINTS:
-        raise StealthNSError(
-            f"{what} has {n} point{'s' * (n != 1)}: at least {MIN_SEED_POINTS} are needed (a Gaussian's "
-            f"first size is its distance to its 3 nearest neighbours){hint}"
-        )
-    if float(np.ptp(xyz, axis=0).max()) == 0.0:
-        raise StealthNSError(
-            f"{what}: all {n} points coincide at ({_xyz(xyz[0])}); they span no volume{hint}"
-        )
-    distance = np.linalg.norm(xyz - centre, axis=1) / spread
-    k = int(np.argmax(distance))
-    if distance[k] > MAX_POINT_DISTANCE:
-        raise StealthNSError(
-            f"{what}: {point(k)} at ({_xyz(xyz[k])}) is {distance[k]:.3g} times the cameras' spread from "
-            f"their centre (more than {MAX_POINT_DISTANCE:g}): an absurd position"
-        )
-
-
-def _check_ply(
-    path: Path, meta: dict[str, Any], data: Path, centre: np.ndarray, spread: float
-) -> tuple[Path, int]:
-    ply = path.parent / str(meta["ply_file_path"])
-    if not ply.is_file():
-        raise StealthNSError(
-            f"{path}: ply_file_path {ply} (seed points) does not exist; triangulate them with "
-            f"`stealth-ns seed-points --data {data}` or remove ply_file_path"
-        )
-    hint = f"; triangulate them with `stealth-ns seed-points --data {data}` or remove ply_file_path"
-    try:
-        n = ply_vertex_count(ply)
-    except StealthNSError as err:
-        raise StealthNSError(f"{path}: {err}") from None
-    xyz = np.zeros((0, 3))
-    if n > 0:  # read as nerfstudio reads it
-        import open3d as o3d
-
-        xyz = np.asarray(o3d.io.read_point_cloud(str(ply)).points, dtype=np.float64)
-        if len(xyz) != n:
-            raise StealthNSError(f"{path}: open3d reads {len(xyz)} of the {n} points of {ply}")
-    check_seed_points(xyz, f"{path}: seed-point file {ply}", centre, spread, hint)
-    return ply, len(xyz)
-
-
 # ---------------------------------------------------------------------------------- the check
 def _check_splits(path: Path, meta: dict[str, Any], names: set[str]) -> dict[str, int]:
     splits = {}
@@ -481,20 +286,37 @@ def _check_splits(path: Path, meta: dict[str, Any], names: set[str]) -> dict[str
     return splits
 
 
-def check_dataset(data: Path, decode: bool = True, downscale_factor: int | None = None) -> DatasetSummary:
+def check_dataset(
+    data: Path, decode: bool = True, downscale_factor: int | None = None, dataparser: str | None = None
+) -> DatasetSummary:
     """Check the dataset ``data``: nerfstudio-data (a folder with ``transforms.json`` or the JSON file),
-    or a COLMAP folder (:func:`check_colmap`).
+    a COLMAP folder (:func:`check_colmap`) or a Blender folder (:func:`check_blender`).
 
     ``decode``: decode every image (else only its header is read). ``downscale_factor``: nerfstudio's
-    (None: chosen as nerfstudio does); > 1: the images are read from ``images_N/``. Raises
+    (None: chosen as nerfstudio does); > 1: the images are read from ``images_N/``. ``dataparser``:
+    "nerfstudio-data" when ns-train reads ``data`` with it, which refuses a COLMAP or Blender folder
+    naming the dataparser that reads it; None: the folder's own format. Raises
     :class:`StealthNSError` with one line naming the file and the frame (index and ``file_path``).
     """
     path = transforms_path(data)
-    if not path.is_file() and Path(data).expanduser().is_dir() and (model := _colmap_model(path.parent)):
-        return check_colmap(path.parent, model, decode=decode)
+    if not path.is_file() and path.parent.is_dir():
+        model, folder = _colmap_model(path.parent), path.parent
+        blender = model is None and any((folder / f"transforms_{s}.json").is_file() for s in BLENDER_SPLITS)
+        if dataparser == "nerfstudio-data" and (model or blender):
+            what, flags = ("COLMAP", f"colmap --data {folder} --colmap-path {model}") if model else (
+                "Blender", f"blender-data --data {folder}"
+            )  # fmt: skip
+            raise StealthNSError(
+                f"{path} does not exist: {folder} is a {what} dataset; train it with `{flags}` in place "
+                "of nerfstudio-data"
+            )
+        if model:
+            return check_colmap(folder, model, decode=decode)
+        if blender:
+            return check_blender(folder, decode=decode)
     meta = _load(path)
     _check_camera_model(path, meta)
-    root, frames, origins = path.parent, meta["frames"], _Origins()
+    root, frames, origins = path.parent, meta["frames"], Origins()
     sizes: set[tuple[int, int]] = set()
     names: set[str] = set()
     factor = downscale_factor
@@ -505,7 +327,7 @@ def check_dataset(data: Path, decode: bool = True, downscale_factor: int | None 
         if not isinstance(file_path, str) or not file_path.strip():
             raise StealthNSError(f"{path}: frame {i} has no file_path")
         where = f"{path}: frame {i} ({file_path})"
-        _check_frame_references(path, i, frame, origins)
+        check_frame_references(path, i, frame, origins)
         _check_matrix(frame.get("transform_matrix"), where)
         values = _check_intrinsics(path, meta, frame, where)
         camera = (int(values["w"]), int(values["h"]), path.name if "w" in meta else "the frame")
@@ -515,25 +337,139 @@ def check_dataset(data: Path, decode: bool = True, downscale_factor: int | None 
         names.add(str(Path(file_path)))
     splits = _check_splits(path, meta, names)
     positions = [[row[3] for row in frame["transform_matrix"][:3]] for frame in frames]
-    centre, spread = _camera_spread(np.array(positions, dtype=np.float64), str(path))
+    centre, spread = camera_spread(np.array(positions, dtype=np.float64), str(path))
     for key in ("ply_file_path", "mask_path"):
         if meta.get(key) is not None:
-            _check_reference(root, meta[key], str(path), key, None)
+            check_reference(root, meta[key], str(path), key, None)
     ply, n_points = None, None
     if meta.get("ply_file_path") is not None:
-        ply, n_points = _check_ply(path, meta, Path(data), centre, spread)
+        ply = root / str(meta["ply_file_path"])
+        hint = f"; triangulate them with `stealth-ns seed-points --data {data}` or remove ply_file_path"
+        n_points = check_ply(ply, str(path), "ply_file_path", hint, centre, spread)
     return DatasetSummary(path, len(frames), tuple(sorted(sizes)), ply, n_points, splits)
+
+
+# ---------------------------------------------------------------------------------- Blender
+BLENDER_SPLITS = {"train": "the training views", "val": "ns-train's evaluation views", "test": "ns-eval's"}
+"""Blender's ``transforms_SPLIT.json`` files, with what blender-data reads each for."""
+
+
+def blender_image(file_path: str) -> str:
+    """The image blender-data reads for a frame's ``file_path`` (relative to the folder): every "./"
+    dropped and ".png" added, whatever the name ends with."""
+    return file_path.replace("./", "") + ".png"
+
+
+def _check_blender_image(
+    folder: Path, file_path: str, where: str, decode: bool, origins: Origins
+) -> tuple[Path, tuple[int, int]]:
+    """The image of a frame and its size (:func:`_check_image`)."""
+    name = blender_image(file_path)
+    check_reference(folder, name, where, "file_path", origins)
+    image = folder / name
+    if not image.exists() and (folder / file_path).is_file():
+        raise StealthNSError(
+            f"{where}: image {image} does not exist: blender-data reads file_path + '.png', so "
+            f"file_path names {folder / file_path} only without its extension"
+        )
+    return image, _check_image(image, where, decode)
+
+
+def _check_blender_split(
+    folder: Path, split: str, decode: bool, origins: Origins, positions: list[list[float]]
+) -> tuple[int, tuple[int, int]]:
+    """One ``transforms_SPLIT.json``: its frame count and image size; its cameras' positions appended."""
+    path = folder / f"transforms_{split}.json"
+    if not path.is_file():
+        other = " (it is a nerfstudio-data folder: train it with nerfstudio-data)"
+        raise StealthNSError(
+            f"{path} does not exist: blender-data reads {BLENDER_SPLITS[split]} from it"
+            + (other if (folder / "transforms.json").is_file() else "")
+        )
+    meta = _load(path)
+    angle = meta.get("camera_angle_x")
+    if not _finite(angle) or not 0 < angle < math.pi:
+        got = f"got {angle!r}" if "camera_angle_x" in meta else "it has none"
+        raise StealthNSError(
+            f"{path}: camera_angle_x (the horizontal field of view) must be a number of radians in "
+            f"(0, pi), {got}"
+        )
+    first: tuple[Path, tuple[int, int]] | None = None
+    for i, frame in enumerate(meta["frames"]):
+        file_path = frame.get("file_path") if isinstance(frame, dict) else None
+        if not isinstance(file_path, str) or not file_path.strip():
+            raise StealthNSError(f"{path}: frame {i} has no file_path (or is not a JSON object)")
+        where = f"{path}: frame {i} ({file_path})"
+        _check_matrix(frame.get("transform_matrix"), where)
+        image, size = _check_blender_image(folder, file_path, where, decode, origins)
+        if first is not None and size != first[1]:
+            raise StealthNSError(
+                f"{where}: image {image} is {size[0]}x{size[1]} but the first frame's ({first[0].name}) is "
+                f"{first[1][0]}x{first[1][1]}: blender-data gives every camera of {path.name} that size"
+            )
+        first = first or (image, size)
+        positions.append([row[3] for row in frame["transform_matrix"][:3]])
+    assert first is not None  # _load refuses an empty frame list
+    return len(meta["frames"]), first[1]
+
+
+def check_blender(
+    folder: Path, splits: tuple[str, ...] = ("train", "val"), decode: bool = True, ply: Path | None = None
+) -> DatasetSummary:
+    """Check a Blender (NeRF-synthetic) folder as nerfstudio's blender-data reads it: the ``splits``
+    it needs (ns-train: train and val; ns-eval: test) and any other present each parse, with a
+    camera_angle_x in (0, pi) and frames; each frame's pose is finite and its image (file_path +
+    ".png", inside the folder) decodes at the size of the split's first image; the seed points of
+    blender-data's ``--ply-path`` ``ply`` (relative to the folder), if given, are usable."""
+    folder = Path(folder).expanduser()
+    if not folder.is_dir():
+        raise StealthNSError(
+            f"dataset folder {folder} " + ("is not a folder" if folder.exists() else "does not exist")
+        )
+    present = [s for s in BLENDER_SPLITS if s in splits or (folder / f"transforms_{s}.json").is_file()]
+    counts, sizes, positions, origins = {}, set(), [], Origins()
+    for split in present:
+        counts[split], size = _check_blender_split(folder, split, decode, origins, positions)
+        sizes.add(size)
+    n_points = None
+    if ply is not None:
+        centre, spread = camera_spread(np.array(positions, dtype=np.float64), str(folder))
+        hint = f"; make them with `stealth-ns seed-points --data {folder}` or leave --ply-path out"
+        ply = folder / ply
+        n_points = check_ply(ply, f"blender-data --data {folder}", "--ply-path", hint, centre, spread)
+    return DatasetSummary(
+        folder, sum(counts.values()), tuple(sorted(sizes)), ply, n_points, counts, blender=True
+    )
 
 
 # ---------------------------------------------------------------------------------- COLMAP
 def _colmap_model(folder: Path) -> str | None:
-    """The COLMAP model folder of ``folder`` (relative), as the bench and poison-dataset find it."""
-    from stealth_ns.datasets.source import COLMAP_DIRS
+    """The COLMAP model folder of ``folder`` (relative; :func:`~stealth_ns.datasets.source.colmap_models`)."""
+    from stealth_ns.datasets.source import colmap_models
 
-    for rel in COLMAP_DIRS:
-        if any((folder / rel / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
-            return rel
-    return None
+    return next(iter(colmap_models(folder)), None)
+
+
+def _check_model_folder(folder: Path, model: str) -> None:
+    """StealthNSError unless ``folder / model`` holds a COLMAP model, saying where the folder's model is
+    and which ``--colmap-path`` reads it."""
+    from stealth_ns.datasets.source import colmap_models
+
+    if not folder.is_dir():
+        raise StealthNSError(
+            f"dataset folder {folder} " + ("is not a folder" if folder.exists() else "does not exist")
+        )
+    if any((folder / model / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+        return
+    default = " (nerfstudio's default --colmap-path)" if Path(model) == Path("colmap/sparse/0") else ""
+    where = f"{folder / model}{default} holds no COLMAP model (cameras.bin or cameras.txt)"
+    found = colmap_models(folder)
+    if not found:
+        raise StealthNSError(f"{where}, nor does any folder in {folder}: is it a COLMAP dataset?")
+    others = f" (others: {', '.join(found[1:4])})" if len(found) > 1 else ""
+    raise StealthNSError(
+        f"{where}: the model of {folder} is in {found[0]}{others}; give --colmap-path {found[0]}"
+    )
 
 
 def _read_colmap(model: Path) -> Any:
@@ -566,6 +502,7 @@ def check_colmap(folder: Path, model: str, images: str = "images", decode: bool 
     """Check the COLMAP dataset ``folder`` (model ``folder/model``, images in ``folder/images``) as
     nerfstudio's colmap parser reads it: every image inside the folder, decoding, at its camera's size,
     with a finite pose; points3D usable seed points (:func:`check_seed_points`)."""
+    _check_model_folder(Path(folder), model)
     model_dir = Path(folder) / model
     rec = _read_colmap(model_dir)
     sizes: set[tuple[int, int]] = set()
@@ -574,9 +511,9 @@ def check_colmap(folder: Path, model: str, images: str = "images", decode: bool 
         image = rec.images[image_id]
         where = f"{model_dir}: image {image_id} ({image.name})"
         file = Path(folder) / images / image.name
-        if (leaves := _leaves(Path(folder), file)) is not None:
+        if (how := leaves(Path(folder), file)) is not None:
             raise StealthNSError(
-                f"{model_dir}: image {image_id} {image.name!r} leaves the dataset folder {folder}{leaves}"
+                f"{model_dir}: image {image_id} {image.name!r} leaves the dataset folder {folder}{how}"
             )
         camera = _check_colmap_camera(rec.cameras[image.camera_id], str(model_dir))
         centre = np.asarray(image.projection_center(), dtype=np.float64)
@@ -595,6 +532,6 @@ def check_colmap(folder: Path, model: str, images: str = "images", decode: bool 
     )
     ids = sorted(rec.points3D)
     xyz = np.array([rec.points3D[i].xyz for i in ids], dtype=np.float64).reshape(-1, 3)
-    centre, spread = _camera_spread(np.array(centres), str(model_dir))
+    centre, spread = camera_spread(np.array(centres), str(model_dir))
     check_seed_points(xyz, str(points), centre, spread, ids=ids)
     return DatasetSummary(Path(folder), rec.num_images(), tuple(sorted(sizes)), points, len(xyz), {}, model)

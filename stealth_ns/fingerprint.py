@@ -13,6 +13,10 @@ attacked):
 
 Runs without the file (trained before it existed, or by another method) get it recomputed from the
 dataset when loaded.
+
+Which *model* a run holds is told by its Gaussians, not by its path: :func:`same_points` finds a copy of a
+run, or a PLY exported from it, however it is named (``stealth-ns report`` refuses to compare a run with
+itself).
 """
 
 from __future__ import annotations
@@ -30,6 +34,10 @@ from stealth_ns.json_io import write_json_atomic
 FINGERPRINT_FILE = "dataset.json"
 #: Bumped when the recipe changes; a recorded fingerprint of another version is recomputed.
 FINGERPRINT_VERSION = 1
+#: Two models are one when every Gaussian centre of each lies this close (scene units: nerfstudio's
+#: normalised frame, the cameras within [-1, 1]) to one of the other; exporting a model as a float32 PLY
+#: and loading it back moves them by ~1e-7, training one step moves them by more.
+SAME_MODEL_TOLERANCE = 1e-5
 
 
 def file_sha256(path: Path) -> str:
@@ -97,3 +105,22 @@ def fingerprint_differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
     if a.get("poses") != b.get("poses") or a.get("n_images") != b.get("n_images"):
         diff.append("poses")
     return diff
+
+
+def same_points(a: np.ndarray, b: np.ndarray, tolerance: float = SAME_MODEL_TOLERANCE) -> bool:
+    """Whether the points ``a`` and ``b`` (``[N, 3]``, e.g. two models' Gaussian centres; rows with a NaN
+    or an infinity left out, as a PLY export drops them) are the same up to ``tolerance``: as many, and
+    each of either within ``tolerance`` of one of the other, in whatever order."""
+    a, b = (np.asarray(x, dtype=np.float64).reshape(-1, 3) for x in (a, b))
+    a, b = a[np.isfinite(a).all(axis=1)], b[np.isfinite(b).all(axis=1)]
+    if a.shape != b.shape:
+        return False
+    if len(a) == 0 or np.allclose(a, b, rtol=0.0, atol=tolerance):
+        return True
+    from scipy.spatial import cKDTree
+
+    for points, others in ((a, b), (b, a)):
+        distances, _ = cKDTree(others).query(points, distance_upper_bound=tolerance)
+        if not np.isfinite(distances).all():
+            return False
+    return True

@@ -18,7 +18,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from skimage.util import img_as_ubyte
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.errors import StealthNSError, write_error
+from stealth_ns.json_io import write_bytes_atomic
 
 if TYPE_CHECKING:
     import torch
@@ -180,7 +181,9 @@ def split_alpha(image: np.ndarray | torch.Tensor) -> tuple[np.ndarray, np.ndarra
 
 def save_png(path: str | Path, image: np.ndarray | torch.Tensor) -> Path:
     """Write an 8-bit PNG (creating parent directories), deterministically: no metadata, no
-    timestamp, so the same pixels give the same bytes.
+    timestamp, so the same pixels give the same bytes. Encoded in memory and written whole or not at
+    all (:func:`~stealth_ns.json_io.write_bytes_atomic`): a full disk leaves no truncated picture, and
+    is a one-line StealthNSError ``cannot write PATH: No space left on device``.
 
     Args:
         path: output file.
@@ -192,10 +195,10 @@ def save_png(path: str | Path, image: np.ndarray | torch.Tensor) -> Path:
     """
     import imageio.v3 as iio
 
-    arr = _png_pixels(image, "save_png")
+    data = iio.imwrite("<bytes>", _png_pixels(image, "save_png"), plugin=PLUGIN, extension=".png")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    iio.imwrite(path, arr, plugin=PLUGIN, extension=".png")
+    _make_parent(path)
+    write_bytes_atomic(path, data)
     return path
 
 
@@ -221,20 +224,29 @@ def _png_pixels(image: np.ndarray | torch.Tensor, caller: str) -> np.ndarray:
 def save_image(path: str | Path, image: np.ndarray | torch.Tensor) -> Path:
     """Write an 8-bit image in the format of ``path``'s extension: PNG as :func:`save_png`, JPEG at
     quality 100 (still lossy: callers that need exact pixels re-read the file), other formats as the
-    plugin writes them."""
+    plugin writes them; whole or not at all, as :func:`save_png`."""
     import imageio.v3 as iio
 
     path = Path(path)
     if path.suffix.lower() == ".png":
         return save_png(path, image)
     arr = np.ascontiguousarray(to_uint8(_numpy(image)))
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_parent(path)
     options = {"quality": 100} if path.suffix.lower() in (".jpg", ".jpeg") else {}
-    try:
-        iio.imwrite(path, arr, plugin=PLUGIN, extension=path.suffix, **options)
+    try:  # in memory first: the file is then written whole or not at all
+        data = iio.imwrite("<bytes>", arr, plugin=PLUGIN, extension=path.suffix, **options)
     except Exception as exc:  # Pillow raises many types for formats it cannot write
         raise StealthNSError(f"cannot write {path}: {type(exc).__name__}: {exc}") from None
+    write_bytes_atomic(path, data)
     return path
+
+
+def _make_parent(path: Path) -> None:
+    """Create ``path``'s folder; a one-line StealthNSError when that fails (read-only, full)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise write_error(path, err) from None
 
 
 def _numpy(image: np.ndarray | torch.Tensor) -> np.ndarray:

@@ -1,13 +1,24 @@
-"""Checks on an output folder before any slow work: it can be created and written."""
+"""Checks on an output folder before any slow work: it can be created and written; and the rules of what a
+command writes into it (:func:`claim_output`): never through a link, never over an input or a file it
+did not write, with a record of what it wrote."""
 
 from __future__ import annotations
 
 import os
 import shutil
 import tempfile
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from stealth_ns.errors import StealthNSError
+from stealth_ns.file_manifest import (
+    files_under,
+    foreign_files,
+    listing,
+    read_manifest,
+    remove_owned,
+    write_manifest,
+)
 
 
 def check_writable(output: Path, what: str = "report") -> None:
@@ -77,3 +88,107 @@ def remove_tree(path: Path, output: Path) -> None:
         path.unlink()
     elif path.exists():
         shutil.rmtree(path)
+
+
+# ------------------------------------------------------------------ a command's files in its --output
+def check_no_links(output: Path, rels: Iterable[str]) -> None:
+    """StealthNSError when one of ``rels`` (paths relative to ``output`` that a command is about to
+    write, replace or remove), or a folder on the way to it from ``output``, is a symbolic link: nothing
+    is written outside ``--output``, never through a link (``output`` itself may be one: the folder the
+    user named)."""
+    for rel in rels:
+        step = Path(output)
+        for part in Path(rel).parts:
+            step = step / part
+            if step.is_symlink():
+                raise StealthNSError(
+                    f"--output {output}: {step} is a symbolic link (to {os.readlink(step)}); stealth-ns "
+                    "never writes through a link: remove it or choose another folder"
+                )
+
+
+def check_inputs_kept(output: Path, rels: Iterable[str], inputs: Mapping[str, Path | None]) -> None:
+    """StealthNSError when an input (flag -> file or folder) is one of ``rels`` (relative to ``output``:
+    files to be written, folders to be replaced whole), lies inside one or holds one, links resolved (a
+    hard link to a written file counts too): a command never writes over what it reads."""
+    real_out = Path(os.path.realpath(output))
+    for flag, given in inputs.items():
+        if given is None or not (Path(given).exists() or Path(given).is_symlink()):
+            continue
+        real_in = Path(os.path.realpath(given))
+        for rel in rels:
+            target = real_out / rel
+            same = real_in == target or (
+                target.exists() and Path(given).is_file() and os.path.samefile(target, given)
+            )
+            holds, inside = target in real_in.parents, real_in in target.parents
+            if same or holds or inside:
+                what = "is" if same else ("holds" if holds else "lies in")
+                raise StealthNSError(
+                    f"--output {output}: the command writes {rel} there, which {what} its input {flag} "
+                    f"{given}; it never writes over its input: choose another --output"
+                )
+
+
+def _present(output: Path, files: Iterable[str], folders: Iterable[str]) -> list[str]:
+    """Of ``files`` and the files under ``folders`` (relative to ``output``), those there now."""
+    files = [f for f in files if (output / f).exists() or (output / f).is_symlink()]
+    return sorted({*files, *files_under(output, [d for d in folders if (output / d).exists()])})
+
+
+def check_output_plan(
+    output: Path,
+    record: str,
+    files: Iterable[str],
+    folders: Iterable[str] = (),
+    inputs: Mapping[str, Path | None] | None = None,
+) -> None:
+    """StealthNSError, before anything is written, when a command's ``files`` or ``folders`` (owned
+    whole) in ``output`` would go through a link, over an input (``inputs``: flag -> path) or over a file
+    its earlier run did not write there or that was changed since (the earlier run's ``record``:
+    :mod:`stealth_ns.file_manifest`)."""
+    files, folders = list(files), list(folders)
+    check_no_links(output, [*files, *folders, record])
+    check_inputs_kept(output, [*files, *folders], inputs or {})
+    foreign = foreign_files(output, read_manifest(output / record), _present(output, files, folders))
+    if foreign:
+        raise StealthNSError(
+            f"--output {output} holds {listing(foreign)}, which stealth-ns did not write there or which "
+            f"changed since (not in its record {record}): move them away or choose another folder"
+        )
+
+
+def claim_output(
+    output: Path,
+    record: str,
+    written_by: str,
+    files: Iterable[str],
+    folders: Iterable[str] = (),
+    inputs: Mapping[str, Path | None] | None = None,
+) -> None:
+    """Make ``output`` ready for a command's ``files`` and ``folders``: :func:`check_output_plan`, then
+    remove what the command's earlier run there recorded writing (unchanged, never through a link; a
+    file the user changed since stays), and record the new plan first, so that a run cut short can
+    still be replaced. :func:`record_output` records the files with their hashes at the end."""
+    output = Path(output)
+    files, folders = list(files), list(folders)
+    check_output_plan(output, record, files, folders, inputs)
+    earlier = read_manifest(output / record)
+    stale = _present(output, [f for f in earlier.files if f not in files], earlier.folders)
+    check_no_links(output, stale)
+    stale = [f for f in stale if f not in foreign_files(output, earlier, stale)]
+    try:
+        output.mkdir(parents=True, exist_ok=True)
+        remove_owned(output, earlier, stale)
+        write_manifest(output / record, output, files, written_by, False, folders)
+    except OSError as err:
+        raise StealthNSError(f"cannot write to --output {output}: {err.strerror or err}") from None
+
+
+def record_output(
+    output: Path, record: str, written_by: str, files: Iterable[str], folders: Iterable[str] = ()
+) -> None:
+    """Record, with their hashes, the ``files`` and every file under ``folders`` that a command wrote
+    into ``output`` (what its next run may replace)."""
+    output = Path(output)
+    write_manifest(output / record, output, _present(output, files, folders), written_by, True)

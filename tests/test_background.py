@@ -35,6 +35,7 @@ def test_uniform_backgrounds_are_told_apart():
 def _trainer_output(scene: Path, out: Path, capsys, background: str) -> str:
     config = trainer_config(open_source(scene), AttackConfig(enabled=False))
     config.output_dir = out
+    config.timestamp = f"{scene.name}-{background}"  # a run folder of its own (one training per folder)
     config.pipeline.model.background_color = background
     setup_trainer(config)
     return capsys.readouterr().out

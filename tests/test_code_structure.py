@@ -35,7 +35,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "stealth_ns", "errors", "json_io", "image_io", "provenance", "fingerprint", "safe_config",
             "step_timing", "malloc_tuning", "schedulers", "optimizers", "figures", "output_folder",
-            "html_page", "checkpoints", "file_manifest", "nerfstudio_startup",
+            "html_page", "checkpoints", "file_manifest", "nerfstudio_startup", "thread_invariant",
         ),
     ),
     (

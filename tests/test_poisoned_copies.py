@@ -125,6 +125,11 @@ def test_command_of_each_kind(tmp_path):
     assert _arg(cmd, "--iterations") == "30" and _arg(cmd, "--views") == VIEW
     assert cmd[-2:] == ["--multi-view", "2"]  # the run's own options last
     assert _job(tmp_path, view=None).command().count("--views") == 0  # the attack's default view
+    # a short bench gets one attack epoch half-way (ipa-poison refuses --every >= --iterations);
+    # a full-length one keeps the paper's 200 steps per epoch, and the run's own --every wins
+    assert _arg(cmd, "--every") == "15"
+    assert "--every" not in _job(tmp_path, iterations=3000).command()
+    assert _job(tmp_path, args=("--every", "7")).command().count("--every") == 1
 
     data_only = _job(tmp_path, kind="data-only", seed=3)
     cmd = data_only.command()
@@ -269,7 +274,7 @@ def test_dry_run_plans_the_poisoned_copies(ranked_forward, capsys):
     assert lines[ipa_line].strip() == (
         f"poisoned dataset (made first): stealth-ns ipa-poison --data {forward} --output "
         f"{out / 'poisoned' / 'forward-seed0-30it' / 'ipa-median'} --overwrite --method stealth-splat-lite "
-        "--seed 0 --iterations 30 --views frame_00020.png"
+        "--seed 0 --iterations 30 --every 15 --views frame_00020.png"
     )
     victim = lines[ipa_line + 1].strip()  # its ns-train line right after
     assert victim.startswith("ns-train stealth-splat-lite ") and "--timestamp ipa-median" in victim

@@ -28,6 +28,8 @@ import numpy as np
 import torch
 from scipy import ndimage
 
+from stealth_ns.json_io import write_npz_atomic
+
 __all__ = [
     "DensityGrid",
     "voxel_density",
@@ -127,14 +129,8 @@ class DensityGrid:
         if clash:
             raise ValueError(f"extra array names {clash} clash with the grid's own keys {_NPZ_RESERVED}")
         path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "wb") as fh:  # an open file keeps numpy from appending ".npz" to the name
-            np.savez_compressed(
-                fh,
-                values=self.values,
-                origin=self.origin,
-                voxel_size=np.float64(self.voxel_size),
-                **{k: np.asarray(v) for k, v in extras.items()},
-            )
+        arrays = {"values": self.values, "origin": self.origin, "voxel_size": np.float64(self.voxel_size)}
+        write_npz_atomic(path, {**arrays, **{k: np.asarray(v) for k, v in extras.items()}})
         return path
 
     @classmethod

@@ -33,7 +33,7 @@ from torch import Tensor
 from stealth_ns.attack.density import DensityGrid
 from stealth_ns.errors import StealthNSError
 from stealth_ns.image_io import read_image, save_png, to_float32
-from stealth_ns.json_io import json_safe
+from stealth_ns.json_io import json_safe, write_npz_atomic, write_text_atomic
 
 RECORD_FILE = "attack.json"
 VIEWS_FILE = "views.npz"
@@ -175,8 +175,8 @@ class AttackRecord:
             for index, image in self.support_targets.items():
                 arrays[f"support_{index:04d}"] = image.detach().cpu().float().numpy()
                 save_png(attack_dir / f"view{index:04d}_support.png", image)
-            np.savez_compressed(attack_dir / VIEWS_FILE, **arrays)
-        (attack_dir / RECORD_FILE).write_text(json.dumps(self.to_json(), indent=2, sort_keys=True))
+            write_npz_atomic(attack_dir / VIEWS_FILE, arrays)
+        write_text_atomic(attack_dir / RECORD_FILE, json.dumps(self.to_json(), indent=2, sort_keys=True))
 
     @classmethod
     def read(cls, attack_dir: Path, cameras: Any = None, rebuilt: Sequence[PoisonView] = ()) -> AttackRecord:

@@ -19,6 +19,7 @@ from typing import Any, Literal
 from stealth_ns.attack.normal_draw import NOISE_GENERATOR
 from stealth_ns.errors import StealthNSError
 from stealth_ns.json_io import write_json_atomic
+from stealth_ns.poisoning.config import IPAConfig
 from stealth_ns.poisoning.dataset_copy import RECORD_DIR, RECORD_FILE
 from stealth_ns.runs import training as runs
 from stealth_ns.runs.training import bin_path
@@ -103,6 +104,10 @@ class PoisonJob:
         ]
         if self.kind == "ipa":
             cmd += ["--iterations", str(self.iterations)]
+            every = IPAConfig.every
+            if self.iterations <= every and "--every" not in runs.cli_options(self.args):
+                # a short bench (tests, --iterations <= 200): one attack epoch half-way, not none
+                cmd += ["--every", str(max(1, self.iterations // 2))]
         if self.view is not None:
             cmd += ["--views", self.view]
         return [*cmd, *self.args]

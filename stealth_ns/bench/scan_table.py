@@ -11,7 +11,6 @@ results when measured) are kept apart: there may be no illusion to find in them.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -19,45 +18,30 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.attack.record import AttackRecord
-from stealth_ns.checkpoints import checkpoint_steps
+from stealth_ns.bench.scan_runs import (
+    PLYS_DIR,
+    RECORD,
+    RESULTS_FILE,
+    ROC_FILE,
+    TABLE_FILE,
+    WRITTEN_BY,
+    check_arguments,
+    inputs_of,
+    output_plan,
+)
 from stealth_ns.datasets.frames import frame_transforms
 from stealth_ns.datasets.source import inspect_folder
 from stealth_ns.defences.detection import detection_metrics
 from stealth_ns.defend.evaluate import Evaluator, defeat_metrics, target_of
-from stealth_ns.errors import StealthNSError
 from stealth_ns.gaussian_ply import write_gaussian_ply
 from stealth_ns.gaussian_transform import transform_cloud
 from stealth_ns.json_io import json_safe, write_json_atomic
+from stealth_ns.output_folder import claim_output, record_output
 from stealth_ns.runs.imported import ImportedModel, load_model
 from stealth_ns.runs.loaded import attack_record
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.outputs import ground_truth
 from stealth_ns.scan.scanner import scan_model
-
-RESULTS_FILE = "scan-results.json"
-TABLE_FILE = "scan.md"
-ROC_FILE = "roc.png"
-
-
-def bench_runs(bench_output: Path) -> list[dict[str, Any]]:
-    """Every finished run of a ``bench attack`` folder (its results.json, or that file itself), with
-    its V-illusory and whether the attack succeeded."""
-    path = bench_output if bench_output.suffix == ".json" else bench_output / "results.json"
-    if not path.is_file():
-        raise StealthNSError(
-            f"{bench_output} holds no results.json: run `stealth-ns bench attack --output DIR` first"
-        )
-    doc = json.loads(path.read_text(encoding="utf-8"))
-    runs = []
-    for key, run in doc.get("runs", {}).items():
-        config = Path(run.get("config", ""))
-        if not config.is_file() or not checkpoint_steps(config.parent / "nerfstudio_models"):
-            continue
-        metrics = run.get("metrics") or {}
-        runs.append({"key": key, "scene": run["scene"], "clean": bool(run.get("clean")), "config": config,
-                     "label": run.get("label", key), "v_illusory": metrics.get("v_illusory_psnr"),
-                     "success": metrics.get("attack_success")})  # fmt: skip
-    return runs
 
 
 def as_foreign_ply(imported: ImportedModel, path: Path) -> Path:
@@ -220,21 +204,20 @@ def run_bench_scan(
     bench_output: Path, output: Path, cfg: ScanConfig, only: tuple[str, ...] = (), as_ply: bool = False
 ) -> list[dict]:
     """Scan every finished run of ``bench_output`` (or those whose key contains one of ``only``); write
-    OUTPUT/scan-results.json, OUTPUT/scan.md and OUTPUT/roc.png; returns the rows. ``as_ply``: scan
-    each run as a foreign PLY (:func:`as_foreign_ply`, written to OUTPUT/plys/) instead."""
-    runs = [r for r in bench_runs(bench_output) if not only or any(o in r["key"] for o in only)]
-    if not runs:
-        raise StealthNSError(
-            f"no finished run in {bench_output}" + (f" matches {', '.join(only)}" if only else "")
-        )
-    output.mkdir(parents=True, exist_ok=True)
+    OUTPUT/scan-results.json, OUTPUT/scan.md and OUTPUT/roc.png (and the record of them,
+    :data:`~stealth_ns.bench.scan_runs.RECORD`); returns the rows. ``as_ply``: scan each run as a
+    foreign PLY (:func:`as_foreign_ply`, written to OUTPUT/plys/) instead."""
+    runs = check_arguments(bench_output, output, cfg, only, as_ply)  # before anything slow or written
+    files, folders = output_plan(as_ply)
+    claim_output(output, RECORD, WRITTEN_BY, files, folders, inputs_of(bench_output, runs))
     rows = []
     for i, run in enumerate(runs, 1):
         print(f"[{i}/{len(runs)}] scanning {run['key']}", flush=True)
-        ply = output / "plys" / (run["key"].replace("/", "_") + ".ply") if as_ply else None
+        ply = output / PLYS_DIR / (run["key"].replace("/", "_") + ".ply") if as_ply else None
         rows.append(scan_run(run, cfg, ply))
         print(f"  {rows[-1]['verdict']} {rows[-1]['named_views']} (right: {rows[-1]['right']})", flush=True)
         write_json_atomic(output / RESULTS_FILE, json_safe({"config": vars(cfg), "rows": rows}))
     (output / TABLE_FILE).write_text("\n".join(table_lines(rows, cfg)) + "\n", encoding="utf-8")
     plot_roc(output / ROC_FILE, rows)
+    record_output(output, RECORD, WRITTEN_BY, files, folders)
     return rows

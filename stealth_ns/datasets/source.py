@@ -20,6 +20,27 @@ FolderFormat = Literal["nerfstudio-data", "colmap", "blender"]
 
 #: Where a COLMAP folder's model may be, relative to the folder (nerfstudio's default second).
 COLMAP_DIRS: tuple[str, ...] = ("sparse/0", "colmap/sparse/0", "sparse")
+#: How deep :func:`colmap_models` looks for a model elsewhere in a folder.
+COLMAP_SEARCH_DEPTH = 4
+
+
+def colmap_models(folder: Path) -> list[str]:
+    """The folders of ``folder`` holding a COLMAP model (``cameras.bin`` or ``.txt``), relative and
+    "/"-separated: those of :data:`COLMAP_DIRS` first, then any other up to
+    :data:`COLMAP_SEARCH_DEPTH` levels down (hidden folders and links to folders skipped), by name."""
+
+    def holds(path: Path) -> bool:
+        return any((path / f"cameras.{ext}").is_file() for ext in ("bin", "txt"))
+
+    found = [rel for rel in COLMAP_DIRS if holds(folder / rel)]
+    others = []
+    for top, dirs, _ in os.walk(folder):
+        depth = len(Path(top).relative_to(folder).parts)
+        dirs[:] = [] if depth >= COLMAP_SEARCH_DEPTH else sorted(d for d in dirs if not d.startswith("."))
+        rel = Path(top).relative_to(folder).as_posix()
+        if rel not in found and holds(Path(top)):
+            others.append(rel)
+    return found + sorted(others)
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from typing import Any
 import torch
 import yaml
 
-from stealth_ns.checkpoints import read_checkpoint
+from stealth_ns.checkpoints import read_checkpoint, save_checkpoint
 from stealth_ns.fingerprint import FINGERPRINT_FILE
 from stealth_ns.gaussian_rows import select_rows
 from stealth_ns.json_io import write_json_atomic
@@ -66,8 +66,8 @@ def write_pruned_run(
     (base / config.relative_model_dir).mkdir(parents=True)
     loaded = read_checkpoint(checkpoint)
     state = pruned_state(loaded["pipeline"], keep.cpu())
-    torch.save(
-        {"step": loaded["step"], "pipeline": state}, base / config.relative_model_dir / checkpoint.name
+    save_checkpoint(
+        base / config.relative_model_dir / checkpoint.name, {"step": loaded["step"], "pipeline": state}
     )
     (base / "config.yml").write_text(yaml.dump(config), encoding="utf-8")
     if (run_dir / "attack").is_dir():

@@ -39,10 +39,10 @@ from stealth_ns.defend.evaluate import (
     defender_images,
     load_target,
 )
-from stealth_ns.defend.outputs import fmt, pct, write_outputs
+from stealth_ns.defend.outputs import FIGURES, TABLE_FILE, fmt, pct, write_outputs
 from stealth_ns.defend.result_file import DEFEND_FILE
 from stealth_ns.defend.rule import DEFEAT_RULE
-from stealth_ns.errors import StealthNSError
+from stealth_ns.errors import StealthNSError, write_error
 from stealth_ns.json_io import json_safe, write_json_atomic
 from stealth_ns.provenance import software_and_hardware
 from stealth_ns.runs.loaded import load_run
@@ -94,13 +94,12 @@ def score_posthoc(
     return baseline, scored, entries
 
 
-def run_posthoc(
-    target: Target, cfg: DefendConfig, output: Path
-) -> tuple[dict[str, Any], dict[str, Scored], dict[str, Any]]:
-    """:func:`score_posthoc`, and each defended model written as a run under ``output/pruned``."""
+def write_pruned_runs(
+    target: Target, scored: dict[str, Scored], entries: dict[str, Any], output: Path
+) -> None:
+    """Each post-hoc defence's model written as a run under ``output/pruned`` (its ``pruned_run``)."""
     from stealth_ns.defences.pruned_run import write_pruned_run
 
-    baseline, scored, entries = score_posthoc(target, cfg, echo=lambda line: print(line, flush=True))
     for name, entry in entries.items():
         info = {"defence": name, "rule": scored[name].rule}
         keep = torch.from_numpy(~scored[name].pruned)
@@ -108,7 +107,6 @@ def run_posthoc(
             target.run.config_path, target.checkpoint, keep, output / "pruned", name, info, within=output
         )
         entry["pruned_run"] = str(config)
-    return baseline, scored, entries
 
 
 def entry_line(name: str, entry: dict[str, Any]) -> str:
@@ -125,7 +123,12 @@ def entry_line(name: str, entry: dict[str, Any]) -> str:
 def run_defend(
     run: Path, output: Path, cfg: DefendConfig | None = None, clean: Path | None = None
 ) -> dict[str, Any]:
-    """``stealth-ns defend``: every defence of ``cfg`` on the attacked run ``run``; writes ``output``."""
+    """``stealth-ns defend``: every defence of ``cfg`` on the attacked run ``run``; writes ``output``.
+
+    Nothing is written before the defences are scored (and ``clean`` checked); then an earlier result's
+    defend.json, defend.md and figures are removed (they would describe pruned runs replaced now) and
+    defend.json is written last: a write that fails (a full disk) leaves no defend.json, and is one
+    line naming the file and the reason."""
     from stealth_ns.defend.input_filter_retrain import run_input_filter
 
     cfg = cfg or DefendConfig()
@@ -133,7 +136,7 @@ def run_defend(
     check_arguments(Path(run), output, cfg, None if clean is None else Path(clean))
     t0 = time.perf_counter()
     target = load_target(Path(run))
-    baseline, scored, entries = run_posthoc(target, cfg, output)
+    baseline, scored, entries = score_posthoc(target, cfg, echo=lambda line: print(line, flush=True))
     result: dict[str, Any] = {
         "generator": "stealth-ns defend",
         "created": _dt.datetime.now().isoformat(timespec="seconds"),
@@ -148,15 +151,34 @@ def run_defend(
     }
     if clean is not None:
         result["clean"] = clean_reference(target, Path(clean))
-    if "input-filter" in cfg.defences:
-        result["defences"]["input-filter"] = run_input_filter(target, cfg, output, baseline)
-        print(entry_line("input-filter", result["defences"]["input-filter"]), flush=True)
-    result["environment"] = software_and_hardware()
-    result["seconds"] = round(time.perf_counter() - t0, 1)
-    result = json_safe(result)
-    write_outputs(output, result, target, scored)
-    write_json_atomic(output / DEFEND_FILE, result)
+    remove_result_files(output)
+    try:
+        write_pruned_runs(target, scored, entries, output)
+        if "input-filter" in cfg.defences:
+            result["defences"]["input-filter"] = run_input_filter(target, cfg, output, baseline)
+            print(entry_line("input-filter", result["defences"]["input-filter"]), flush=True)
+        result["environment"] = software_and_hardware()
+        result["seconds"] = round(time.perf_counter() - t0, 1)
+        result = json_safe(result)
+        write_outputs(output, result, target, scored)
+        write_json_atomic(output / DEFEND_FILE, result)
+    except OSError as err:
+        raise write_error(err.filename or output, err) from None
     return result
+
+
+def remove_result_files(output: Path) -> None:
+    """Delete defend.json, defend.md and the figures an earlier ``stealth-ns defend`` wrote into
+    ``output`` (a one-line StealthNSError when one cannot be removed); any other file is left alone."""
+    for name in (DEFEND_FILE, TABLE_FILE, *FIGURES.values()):
+        path = output / name
+        if path.is_file() and not path.is_symlink():
+            try:
+                path.unlink()
+            except OSError as err:
+                raise StealthNSError(
+                    f"cannot replace {path} of an earlier result: {err.strerror or err}"
+                ) from None
 
 
 def clean_reference(target: Target, clean: Path) -> dict[str, Any]:

@@ -10,6 +10,7 @@ import torch
 
 from stealth_ns.defend.rule import DEFEAT_V_TEST_COST, lowest_within_cost
 from stealth_ns.figures import figure_grid, save_plot
+from stealth_ns.json_io import atomic_path, write_text_atomic
 from stealth_ns.runs.loaded import render
 
 if TYPE_CHECKING:
@@ -183,18 +184,22 @@ def _poisoned_view_grid(
 
 
 def write_outputs(output: Path, result: dict[str, Any], target: Target, scored: dict[str, Scored]) -> None:
-    """defend.md and the figures into ``output``; their names go into ``result["figures"]``."""
+    """defend.md and the figures into ``output``, each written whole or not at all (a one-line
+    StealthNSError naming the file when that fails); their names go into ``result["figures"]``."""
     from stealth_ns.defences.signals import poison_tags
 
     output.mkdir(parents=True, exist_ok=True)
     figures = {}
     is_poison = poison_tags(target.model)
     if scored and 0 < int(is_poison.sum()) < is_poison.shape[0]:
-        _plot_roc(output / FIGURES["roc"], scored, is_poison)
+        with atomic_path(output / FIGURES["roc"]) as tmp:
+            _plot_roc(tmp, scored, is_poison)
         figures["roc"] = FIGURES["roc"]
-    _plot_curves(output / FIGURES["curves"], result)
+    with atomic_path(output / FIGURES["curves"]) as tmp:
+        _plot_curves(tmp, result)
     figures["curves"] = FIGURES["curves"]
-    _poisoned_view_grid(output / FIGURES["poisoned_view"], result, target, scored)
+    with atomic_path(output / FIGURES["poisoned_view"]) as tmp:
+        _poisoned_view_grid(tmp, result, target, scored)
     figures["poisoned_view"] = FIGURES["poisoned_view"]
     result["figures"] = figures
-    (output / TABLE_FILE).write_text(render_table(result), encoding="utf-8")
+    write_text_atomic(output / TABLE_FILE, render_table(result))

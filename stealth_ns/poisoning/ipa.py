@@ -17,6 +17,25 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from stealth_ns.errors import StealthNSError
+
+
+def attack_epoch_steps(every: int, iterations: int) -> list[int]:
+    """The training steps after which an attack epoch runs: nerfstudio's callback runs at every step
+    divisible by ``every`` among the ``iterations`` steps 0 .. iterations - 1, step 0 included."""
+    return list(range(0, iterations, every))
+
+
+def check_epochs(every: int, iterations: int) -> None:
+    """StealthNSError unless an attack epoch runs on a model that has trained: the poisoned images are
+    the last epoch's, and with ``every`` >= ``iterations`` the only epoch is the one after step 0."""
+    if attack_epoch_steps(every, iterations)[-1:] == [0]:
+        raise StealthNSError(
+            f"--every {every} is not below --iterations {iterations}: the only attack epoch would run "
+            "after the first training step, on an untrained model, and its images would be the poison; "
+            "give --every below --iterations (the paper trains 200 steps per epoch)"
+        )
+
 
 def linf_project(image: Tensor, clean: Tensor, epsilon: float) -> Tensor:
     """``image`` moved into the L-infinity ball of radius ``epsilon`` around ``clean`` and into [0, 1].

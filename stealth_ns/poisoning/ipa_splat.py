@@ -44,7 +44,13 @@ from stealth_ns.poisoning.dataset_copy import (
     open_source,
     write_record,
 )
-from stealth_ns.poisoning.ipa import clip_parameter_change, linf_project, nearest_views, views_within_angle
+from stealth_ns.poisoning.ipa import (
+    check_epochs,
+    clip_parameter_change,
+    linf_project,
+    nearest_views,
+    views_within_angle,
+)
 from stealth_ns.poisoning.setup import setup_trainer, trainer_config
 
 
@@ -153,9 +159,10 @@ def ipa_poison(
     check_output(source, output, overwrite)
     config = trainer_config(source, dataclasses.replace(attack, enabled=False), method, seed)
     _check_views(config, attack)  # bad views fail before anything is written
-    copy = copy_dataset(source, output, overwrite)
     if iterations is not None:
         config.max_num_iterations = int(iterations)
+    check_epochs(cfg.every, config.max_num_iterations)
+    copy = copy_dataset(source, output, overwrite)
     config.output_dir = copy.root / "attack"
     config.experiment_name, config.method_name, config.timestamp = "attacker", method, "run"
     trainer = setup_trainer(config)  # seeded as ns-train: the same seed gives the same poisoned images

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from stealth_ns.defend.outputs import COLUMNS, best_cuts, table_rows
+from stealth_ns.json_io import atomic_path
 
 
 def report_section(result: dict[str, Any], defend_dir: Path, output: Path) -> dict[str, Any]:
@@ -18,7 +19,8 @@ def report_section(result: dict[str, Any], defend_dir: Path, output: Path) -> di
     (output / "defences").mkdir(parents=True, exist_ok=True)
     for key, name in (result.get("figures") or {}).items():
         if (Path(defend_dir) / name).is_file():
-            shutil.copy2(Path(defend_dir) / name, output / "defences" / name)
+            with atomic_path(output / "defences" / name) as tmp:
+                shutil.copy2(Path(defend_dir) / name, tmp)
             figures[key] = f"defences/{name}"
     return {
         "source": str(Path(defend_dir).resolve()),

@@ -15,7 +15,6 @@ clean and poisoned renders of cameras orbited up to +-20 degrees from each poiso
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import re
 from pathlib import Path
 from typing import Any
@@ -23,10 +22,10 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.defend.stealth import stealth_line
-from stealth_ns.errors import StealthNSError
+from stealth_ns.errors import StealthNSError, write_error
 from stealth_ns.figures import figure_grid, save_plot
 from stealth_ns.image_io import save_png
-from stealth_ns.json_io import json_safe
+from stealth_ns.json_io import atomic_path, json_safe, write_json_atomic, write_text_atomic
 from stealth_ns.metrics import psnr
 from stealth_ns.pipeline import rgb_float
 from stealth_ns.provenance import software_and_hardware
@@ -133,7 +132,11 @@ def write_report(
     ``defend`` (a ``stealth-ns defend`` folder of the poisoned run) also a "Defences" section;
     ``stealth``: measure the poisoned run's stealth under the post-hoc defences (a "Stealth" section).
     Either run may be a 3DGS PLY from another trainer with its dataset (``*_data``: a victim of
-    ``poison-dataset`` with the poisoned copy it was trained on)."""
+    ``poison-dataset`` with the poisoned copy it was trained on).
+
+    Every file is written whole (a temporary file renamed), report.json and report.html last; a write
+    that fails (a full disk) removes what the report wrote so far, so no unfinished report is left
+    looking complete, and is a one-line StealthNSError naming the file and the reason."""
     output = Path(output)
     defend_result = check_arguments(poisoned_config, clean_config, output, defend)  # before the slow part
     pair = RunPair.load(Path(poisoned_config), Path(clean_config), poisoned_data, clean_data)
@@ -143,14 +146,64 @@ def write_report(
     report["created"] = _dt.datetime.now().isoformat(timespec="seconds")
     report["defences"] = None
     # an earlier report in the folder is replaced only now: a refusal or a failure above leaves it as it was
-    images = output / "images"
     clear_previous_report(output)
+    try:
+        if defend_result is not None:
+            from stealth_ns.report.defences_section import report_section
+
+            report["defences"] = report_section(defend_result, Path(defend), output)
+        return _write_files(pair, report, output)
+    except (OSError, StealthNSError) as err:
+        raise _unfinished(err, output) from None
+
+
+def _unfinished(err: OSError | StealthNSError, output: Path) -> StealthNSError:
+    """The one line of a report that could not be written, once its files written so far are removed."""
+    line = write_error(err.filename or output, err) if isinstance(err, OSError) else err
+    try:
+        removed = clear_previous_report(output)
+    except StealthNSError:
+        return StealthNSError(f"{line}; the unfinished report in {output} could not be removed")
+    return StealthNSError(f"{line}; the unfinished report was removed" if removed else str(line))
+
+
+def _write_files(pair: RunPair, report: dict[str, Any], output: Path) -> dict[str, Any]:
+    """The pictures, the figures, report.json and report.html of ``report`` into ``output``."""
+    images = output / "images"
     images.mkdir(parents=True, exist_ok=True)
-    if defend_result is not None:
-        from stealth_ns.report.defences_section import report_section
+    view_files = _poisoned_views(pair, report, output)
+    strip = _innocent_strip(pair, images)
+    if strip:
+        kinds = ("ground truth", "clean", "poisoned")
+        rows = [[(f"{s['name']} {kind}", s["arrays"][k]) for s in strip] for k, kind in enumerate(kinds)]
+        with atomic_path(output / "heldout_views.png") as tmp:
+            figure_grid(tmp, rows)
+    for s in strip:
+        del s["arrays"]
+    curve = neighbour_curve(pair)
+    with atomic_path(output / "neighbour_curve.png") as tmp:
+        _plot_neighbour_curve(tmp, curve)
 
-        report["defences"] = report_section(defend_result, Path(defend), output)
+    report["neighbour_views"] = curve
+    report["environment"] = software_and_hardware()
+    report["heldout_strip"] = strip
+    report["images"] = {
+        "poisoned_views": view_files,
+        "figures": {
+            "poisoned_views": "poisoned_views.png",
+            "heldout_views": "heldout_views.png" if strip else None,
+            "neighbour_curve": "neighbour_curve.png",
+        },
+    }
+    report = json_safe(report)
+    write_json_atomic(output / "report.json", report)
+    write_text_atomic(output / "report.html", render_html(report))
+    return report
 
+
+def _poisoned_views(pair: RunPair, report: dict[str, Any], output: Path) -> dict[str, dict[str, str]]:
+    """Each poisoned view's pictures (target, renders, mask) and their grid ``poisoned_views.png``;
+    returns the pictures' names by view."""
     view_rows, view_files = [], {}
     for v in pair.views:
         panels = {
@@ -175,33 +228,9 @@ def write_report(
                 ("illusion mask", panels["mask"]),
             ]
         )
-    figure_grid(output / "poisoned_views.png", view_rows)
-
-    strip = _innocent_strip(pair, images)
-    if strip:
-        kinds = ("ground truth", "clean", "poisoned")
-        rows = [[(f"{s['name']} {kind}", s["arrays"][k]) for s in strip] for k, kind in enumerate(kinds)]
-        figure_grid(output / "heldout_views.png", rows)
-    for s in strip:
-        del s["arrays"]
-    curve = neighbour_curve(pair)
-    _plot_neighbour_curve(output / "neighbour_curve.png", curve)
-
-    report["neighbour_views"] = curve
-    report["environment"] = software_and_hardware()
-    report["heldout_strip"] = strip
-    report["images"] = {
-        "poisoned_views": view_files,
-        "figures": {
-            "poisoned_views": "poisoned_views.png",
-            "heldout_views": "heldout_views.png" if strip else None,
-            "neighbour_curve": "neighbour_curve.png",
-        },
-    }
-    report = json_safe(report)
-    (output / "report.json").write_text(json.dumps(report, indent=2))
-    (output / "report.html").write_text(render_html(report))
-    return report
+    with atomic_path(output / "poisoned_views.png") as tmp:
+        figure_grid(tmp, view_rows)
+    return view_files
 
 
 def summary_lines(report: dict[str, Any], output: Path) -> list[str]:

@@ -60,8 +60,8 @@ class ImportedModel:
     """The Gaussians as read, in the model's own frame (the scan's cleaned PLY is written from them)."""
     frame: str = "nerfstudio"
     frame_match: dict[str, dict[str, float]] = field(default_factory=dict)
-    """Each frame tried -> ``psnr`` (dB, mean over the test views) and ``in_view`` (share of Gaussians
-    inside some training view); empty when the frame was known."""
+    """Each frame tried -> ``psnr`` (dB, mean over the test views), ``in_view`` (share of Gaussians
+    inside some training view) and ``flat_psnr`` (:func:`frame_match`); empty when the frame was known."""
 
 
 def load_model(model: Path, data: Path | None = None, frame: str = "auto") -> ImportedModel:
@@ -154,7 +154,9 @@ def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
 def frame_match(run: LoadedRun) -> dict[str, float]:
     """How well the loaded model fits the run's training cameras: ``in_view``, the share of its centres
     in front of some camera inside its image; ``psnr``, the mean PSNR (dB) of
-    :data:`FRAME_TEST_VIEWS` training views' renders against their images."""
+    :data:`FRAME_TEST_VIEWS` training views' renders against their images; ``flat_psnr``, the same for
+    a flat image of each one's mean colour (what a render that shows nothing of the scene reaches:
+    the scan's yardstick, :mod:`stealth_ns.scan.fit`)."""
     model: StealthSplatModel = run.model
     dm = run.pipeline.datamanager
     cameras = dm.train_dataset.cameras
@@ -163,12 +165,18 @@ def frame_match(run: LoadedRun) -> dict[str, float]:
         model.means.detach().double().cpu().numpy(), viewmats, ks, sizes, np.ones(len(cameras))
     )
     views = np.unique(np.linspace(0, len(cameras) - 1, FRAME_TEST_VIEWS).round().astype(int))
-    scores = []
+    scores, flat = [], []
     for v in views:
         out = render_camera(model, cameras[int(v) : int(v) + 1])
         gt = model.composite_with_background(model.get_gt_img(dm.cached_train[v]["image"]), out["background"])
-        scores.append(min(psnr(out["rgb"].float().cpu(), rgb_float(gt.cpu())), 99.0))
-    return {"psnr": round(float(np.mean(scores)), 2), "in_view": round(float(np.isfinite(ratios).mean()), 4)}
+        gt = rgb_float(gt.cpu())
+        scores.append(min(psnr(out["rgb"].float().cpu(), gt), 99.0))
+        flat.append(min(psnr(gt.mean(dim=(0, 1), keepdim=True).expand_as(gt), gt), 99.0))
+    return {
+        "psnr": round(float(np.mean(scores)), 2),
+        "in_view": round(float(np.isfinite(ratios).mean()), 4),
+        "flat_psnr": round(float(np.mean(flat)), 2),
+    }
 
 
 def _load_splatfacto_run(config_path: Path, config: Any, data: Path | None) -> ImportedModel:

@@ -8,7 +8,7 @@ from typing import Any
 
 from stealth_ns.attack.record import AttackRecord, PoisonView
 from stealth_ns.errors import StealthNSError
-from stealth_ns.fingerprint import fingerprint_differences
+from stealth_ns.fingerprint import fingerprint_differences, same_points
 from stealth_ns.runs.imported import load_model
 from stealth_ns.runs.loaded import LoadedRun, attack_record, load_run
 
@@ -34,8 +34,22 @@ class RunPair:
                 f"{clean} was trained with the attack on; train the clean run with "
                 "--pipeline.attack.enabled False (or any other splatting method)"
             )
+        pair.check_distinct(poisoned, clean)
         pair.check_same_dataset()
         return pair
+
+    def check_distinct(self, poisoned: Path, clean: Path) -> None:
+        """StealthNSError (one line) when both are one model: the same Gaussians
+        (:func:`~stealth_ns.fingerprint.same_points`), as a copy of the clean run or a PLY exported from
+        it given as the poisoned one has; the comparison would measure nothing (a V-test drop of 0 dB).
+        ``poisoned``, ``clean``: the runs as the user gave them."""
+        ours, theirs = (run.model.means.detach().cpu().numpy() for run in (self.poisoned, self.clean))
+        if same_points(ours, theirs):
+            raise StealthNSError(
+                f"the poisoned model {poisoned} is the clean run {clean}: both hold the same {len(ours)} "
+                "Gaussians (a copy of the run, or a model exported from it); give the model trained on the "
+                "poisoned data"
+            )
 
     def check_same_dataset(self) -> None:
         """StealthNSError (one line, naming both runs and what differs) unless both runs were trained

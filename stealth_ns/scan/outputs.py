@@ -6,7 +6,10 @@
   how the scan compares with it (``ground_truth``: never used by the verdict);
 * ``images/VIEW_{full,without,flagged,effect}.png`` per targeted view, and ``scan.html``;
 * the cleaned model without the targeted groups: ``cleaned.ply`` in the input's own frame (every
-  input), and for a nerfstudio run also ``cleaned/`` (a nerfstudio run: ``ns-eval``, ``ns-viewer``).
+  input), and for a nerfstudio run also ``cleaned/`` (a nerfstudio run: ``ns-eval``, ``ns-viewer``);
+* ``.stealth-ns-scan.json``: the record of every file written, with its hash. A later scan into the
+  same folder replaces those files (unchanged ones only) and refuses to write over any other, through
+  a symbolic link, or over its own input (:func:`~stealth_ns.output_folder.claim_output`).
 """
 
 from __future__ import annotations
@@ -21,23 +24,38 @@ import torch
 
 from stealth_ns.defences import detection
 from stealth_ns.defences.pruned_run import write_pruned_run
+from stealth_ns.errors import StealthNSError, write_error
 from stealth_ns.gaussian_ply import write_gaussian_ply
 from stealth_ns.html_page import render_page
 from stealth_ns.image_io import save_png
-from stealth_ns.json_io import json_safe, write_json_atomic
+from stealth_ns.json_io import atomic_path, json_safe, write_json_atomic, write_text_atomic
+from stealth_ns.output_folder import claim_output, record_output, remove_tree
 from stealth_ns.provenance import software_and_hardware
+from stealth_ns.scan.arguments import (
+    CLEANED_PLY,
+    CLEANED_RUN,
+    HTML_FILE,
+    IMAGES_DIR,
+    RECORD,
+    SCAN_FILE,
+    WRITTEN_BY,
+    model_input,
+    output_plan,
+)
 from stealth_ns.scan.scanner import Group, ScanResult
 
-SCAN_FILE = "scan.json"
-HTML_FILE = "scan.html"
-CLEANED_PLY = "cleaned.ply"
-CLEANED_RUN = "cleaned"
 IMAGES = ("full", "without", "flagged", "effect")
+__all__ = ["CLEANED_PLY", "CLEANED_RUN", "HTML_FILE", "SCAN_FILE", "write_outputs"]
 
 
 def _slug(name: str) -> str:
     """A view's name (``images/frame_00030.png``) as a file-name stem (``images_frame_00030``)."""
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in str(Path(name).with_suffix("")))
+
+
+def image_file(name: str, kind: str) -> str:
+    """The picture ``kind`` of the view ``name``, relative to the output folder."""
+    return f"{IMAGES_DIR}/{_slug(name)}_{kind}.png"
 
 
 def group_entry(group: Group) -> dict[str, Any]:
@@ -91,6 +109,7 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
             "sh_degree": imported.cloud.sh_degree,
             "frame": imported.frame,
             "frame_match": imported.frame_match,
+            "render_match_above_flat": round(result.render_match, 2),
         },
         "data": str(data),
         "training_views": len(result.model.run.pipeline.datamanager.train_dataset),
@@ -111,12 +130,12 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
 
 def write_images(result: ScanResult, output: Path) -> dict[str, dict[str, str]]:
     """Each targeted view's renders -> ``images/``; returns view name -> kind -> path (relative)."""
-    (output / "images").mkdir(parents=True, exist_ok=True)
+    (output / IMAGES_DIR).mkdir(parents=True, exist_ok=True)
     files = {}
     for g in result.targeted:
         files[g.name] = {}
         for kind in IMAGES:
-            rel = f"images/{_slug(g.name)}_{kind}.png"
+            rel = image_file(g.name, kind)
             image = g.renders[kind]
             save_png(output / rel, image.astype(np.float32) if image.dtype == bool else image)
             files[g.name][kind] = rel
@@ -128,7 +147,8 @@ def write_cleaned(result: ScanResult, output: Path) -> dict[str, str]:
     keep = ~result.removed
     imported = result.model
     written = {"ply": CLEANED_PLY}
-    write_gaussian_ply(output / CLEANED_PLY, imported.cloud.subset(keep), comment="stealth-ns scan: cleaned")
+    with atomic_path(output / CLEANED_PLY) as tmp:
+        write_gaussian_ply(tmp, imported.cloud.subset(keep), comment="stealth-ns scan: cleaned")
     checkpoint = imported.run.checkpoint
     if checkpoint is not None:
         info = {
@@ -139,7 +159,7 @@ def write_cleaned(result: ScanResult, output: Path) -> dict[str, str]:
         config = write_pruned_run(
             imported.run.config_path, checkpoint, torch.from_numpy(keep), output, CLEANED_RUN, info
         )
-        written["run"] = str(config.relative_to(output))
+        written["run"] = str(config.relative_to(output.resolve()))  # --output may be a link to a folder
     return written
 
 
@@ -149,11 +169,39 @@ def render_html(doc: dict[str, Any]) -> str:
 
 
 def write_outputs(result: ScanResult, output: Path, model_path: Path, data: Path) -> dict[str, Any]:
-    """Every file of the scan into ``output``; returns scan.json's content."""
-    output.mkdir(parents=True, exist_ok=True)
+    """Every file of the scan into ``output`` (checked again now that the pictures' names are known,
+    an earlier scan's files replaced, all recorded); returns scan.json's content."""
+    output = Path(output)
+    files, folders = output_plan(model_path)
+    files += [image_file(g.name, kind) for g in result.targeted for kind in IMAGES]
+    if result.model.run.checkpoint is None:
+        folders = []  # a cleaned run is written only for a run with a checkpoint
+    inputs = {"--model": model_input(model_path), "--data": data}
+    claim_output(output, RECORD, WRITTEN_BY, files, folders, inputs)
     doc = scan_document(result, model_path, data)
-    doc["images"] = write_images(result, output)
-    doc["cleaned"] = write_cleaned(result, output)
-    write_json_atomic(output / SCAN_FILE, json_safe(doc))
-    (output / HTML_FILE).write_text(render_html(doc), encoding="utf-8")
+    try:
+        doc["images"] = write_images(result, output)
+        doc["cleaned"] = write_cleaned(result, output)
+        write_json_atomic(output / SCAN_FILE, json_safe(doc))  # scan.json and scan.html last
+        write_text_atomic(output / HTML_FILE, render_html(doc))
+    except (OSError, StealthNSError) as err:
+        raise _unfinished(err, output, files, folders) from None
+    record_output(output, RECORD, WRITTEN_BY, files, folders)
     return doc
+
+
+def _unfinished(
+    err: OSError | StealthNSError, output: Path, files: list[str], folders: list[str]
+) -> StealthNSError:
+    """The one line of a scan that could not be written (a full disk), once the files it wrote so far
+    are removed: nothing cut short is left looking like a finished scan."""
+    line = write_error(err.filename or output, err) if isinstance(err, OSError) else err
+    try:
+        for name in [*files, *folders]:
+            remove_tree(output / name, output)
+        images = output / IMAGES_DIR
+        if images.is_dir() and not images.is_symlink() and not any(images.iterdir()):
+            images.rmdir()
+    except (OSError, StealthNSError):
+        return StealthNSError(f"{line}; the unfinished scan in {output} could not be removed")
+    return StealthNSError(f"{line}; the unfinished scan was removed")

@@ -27,6 +27,7 @@ from stealth_ns.defences.posthoc import DefenceInputs, Scored, final_learning_ra
 from stealth_ns.render_view import render_camera
 from stealth_ns.runs.imported import ImportedModel
 from stealth_ns.scan.config import ScanConfig
+from stealth_ns.scan.fit import check_fit
 from stealth_ns.scan.verdict import Region, RenderedView, effect_mask, groups_by_view, largest_region
 
 
@@ -57,6 +58,9 @@ class ScanResult:
     groups: list[Group]
     """Every group rendered, largest region first."""
     seconds: dict[str, float]
+    render_match: float = float("nan")
+    """dB above a flat image of each photo's mean colour: the model's training views rendered against
+    their photos (:mod:`stealth_ns.scan.fit`)."""
 
     @property
     def targeted(self) -> list[Group]:
@@ -96,8 +100,14 @@ def _group_effect(model: Any, camera: Any, members: np.ndarray, cfg: ScanConfig)
 def scan_model(
     imported: ImportedModel, cfg: ScanConfig, echo: Callable[[str], None] = lambda line: None
 ) -> ScanResult:
-    """Score, flag, group and judge the Gaussians of ``imported`` (nothing written)."""
+    """Score, flag, group and judge the Gaussians of ``imported`` (nothing written); a one-line
+    StealthNSError for a model that does not sit on its dataset's cameras (:func:`check_fit`)."""
     cfg.validate()
+    render_match = check_fit(imported, cfg.render_match_floor)
+    echo(
+        f"  render match: {render_match:+.1f} dB against a flat image of each photo's mean colour "
+        f"(floor {cfg.render_match_floor:+g} dB)"
+    )
     run = imported.run
     model, dm = run.model, run.pipeline.datamanager
     cameras = dm.train_dataset.cameras
@@ -123,4 +133,4 @@ def scan_model(
         groups.append(Group(view, names[view], members, region, targeted, renders if targeted else {}))
     groups.sort(key=lambda g: (-g.region.share, g.view))
     seconds["groups"] = round(time.perf_counter() - t0, 2)
-    return ScanResult(imported, cfg, scored, flagged, groups, seconds)
+    return ScanResult(imported, cfg, scored, flagged, groups, seconds, render_match)

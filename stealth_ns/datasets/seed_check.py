@@ -1,0 +1,126 @@
+"""A dataset's seed points checked before training: one line naming the file and the point.
+
+Split out of :mod:`stealth_ns.dataset_check` (which re-exports these names), so that every dataset
+format's check -- nerfstudio-data's ``ply_file_path``, COLMAP's ``points3D``, blender-data's
+``--ply-path`` -- measures its cloud against its cameras the same way.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stealth_ns.errors import StealthNSError
+
+__all__ = [
+    "MAX_POINT_DISTANCE", "MIN_SEED_POINTS", "camera_spread", "check_ply", "check_seed_points",
+    "ply_vertex_count", "xyz_text",
+]  # fmt: skip
+
+MIN_SEED_POINTS = 4
+"""A Gaussian's first size is the mean distance to its 3 nearest seed points (splatfacto, which
+raises with fewer points), and the density-guided injection voxelises the cloud's bounding box."""
+MAX_POINT_DISTANCE = 1e6
+"""Seed points further than this many times the cameras' spread (the largest distance of a camera
+from their mean; nerfstudio scales it to about 1) from the cameras' mean are absurd: float32, in
+which nerfstudio loads and trains them, has steps of 0.06 spreads there, and one such point
+stretches the attack's density grid (over the cloud's bounding box) 1e6 times past the scene. Far
+backgrounds of real captures are within 1e3 spreads; coordinates far from the origin (UTM, in
+metres) are fine when the cameras are there too."""
+
+
+def xyz_text(p: np.ndarray) -> str:
+    """A position as ``x, y, z`` for a message."""
+    return ", ".join(f"{float(v):.6g}" for v in p)
+
+
+def camera_spread(positions: np.ndarray, what: str) -> tuple[np.ndarray, float]:
+    """The cameras' mean position and spread (largest distance from it) for ``positions`` [C, 3];
+    StealthNSError if they all are at one position (nerfstudio divides by the spread)."""
+    centre = positions.mean(axis=0)
+    spread = float(np.linalg.norm(positions - centre, axis=1).max())
+    if spread <= 1e-6 * max(1.0, float(np.abs(centre).max())):
+        raise StealthNSError(
+            f"{what}: every frame's camera is at the same position ({xyz_text(positions[0])}): nerfstudio "
+            "scales the scene by how far apart the cameras are"
+        )
+    return centre, spread
+
+
+def ply_vertex_count(path: Path) -> int:
+    """Points in a PLY file, from its header; StealthNSError naming the file if it is no PLY."""
+    try:
+        with open(path, "rb") as f:
+            if f.readline().strip() != b"ply":
+                raise StealthNSError(f"seed-point file {path} is not a PLY file")
+            for _ in range(200):
+                line = f.readline()
+                if not line or line.strip() == b"end_header":
+                    break
+                parts = line.split()
+                if parts[:2] == [b"element", b"vertex"] and len(parts) == 3 and parts[2].isdigit():
+                    return int(parts[2])
+    except OSError as err:
+        raise StealthNSError(f"seed-point file {path} cannot be read: {err.strerror}") from None
+    raise StealthNSError(f"seed-point file {path} has no vertex element in its header")
+
+
+def check_seed_points(
+    xyz: np.ndarray, what: str, centre: np.ndarray, spread: float, hint: str = "", ids: Any = None
+) -> None:
+    """StealthNSError naming ``what`` for a seed cloud ``xyz`` [N, 3] training cannot start from: no
+    points, a non-finite one, fewer than :data:`MIN_SEED_POINTS`, all at one position, or one further
+    than :data:`MAX_POINT_DISTANCE` times the cameras' ``spread`` from their ``centre``. A point is
+    named by its index, or ``point3D ID`` from ``ids`` (COLMAP)."""
+
+    def point(k: int) -> str:
+        return f"point {k}" if ids is None else f"point3D {ids[k]}"
+
+    n = len(xyz)
+    if n == 0:
+        raise StealthNSError(f"{what} has no points{hint}")
+    bad = np.flatnonzero(~np.isfinite(xyz).all(axis=1))
+    if bad.size:
+        raise StealthNSError(
+            f"{what}: {point(bad[0])} is ({xyz_text(xyz[bad[0]])}), not a finite position "
+            f"({bad.size} such point{'s' * (bad.size != 1)})"
+        )
+    if n < MIN_SEED_POINTS:
+        raise StealthNSError(
+            f"{what} has {n} point{'s' * (n != 1)}: at least {MIN_SEED_POINTS} are needed (a Gaussian's "
+            f"first size is its distance to its 3 nearest neighbours){hint}"
+        )
+    if float(np.ptp(xyz, axis=0).max()) == 0.0:
+        raise StealthNSError(
+            f"{what}: all {n} points coincide at ({xyz_text(xyz[0])}); they span no volume{hint}"
+        )
+    distance = np.linalg.norm(xyz - centre, axis=1) / spread
+    k = int(np.argmax(distance))
+    if distance[k] > MAX_POINT_DISTANCE:
+        raise StealthNSError(
+            f"{what}: {point(k)} at ({xyz_text(xyz[k])}) is {distance[k]:.3g} times the cameras' spread "
+            f"from their centre (more than {MAX_POINT_DISTANCE:g}): an absurd position"
+        )
+
+
+def check_ply(ply: Path, where: str, key: str, hint: str, centre: np.ndarray, spread: float) -> int:
+    """The number of points of the seed-point file ``ply`` named by ``where``'s ``key``
+    (``ply_file_path``, ``--ply-path``), read as nerfstudio reads it (open3d) and checked with
+    :func:`check_seed_points`; ``hint`` (from "; ") says how to do without or make them."""
+    if not ply.is_file():
+        raise StealthNSError(f"{where}: {key} {ply} (seed points) does not exist{hint}")
+    try:
+        n = ply_vertex_count(ply)
+    except StealthNSError as err:
+        raise StealthNSError(f"{where}: {err}") from None
+    xyz = np.zeros((0, 3))
+    if n > 0:
+        import open3d as o3d
+
+        xyz = np.asarray(o3d.io.read_point_cloud(str(ply)).points, dtype=np.float64)
+        if len(xyz) != n:
+            raise StealthNSError(f"{where}: open3d reads {len(xyz)} of the {n} points of {ply}")
+    check_seed_points(xyz, f"{where}: seed-point file {ply}", centre, spread, hint)
+    return len(xyz)
