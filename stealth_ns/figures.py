@@ -1,4 +1,6 @@
-"""Matplotlib figures written to PNG (Agg backend): a titled image grid and a labelled one-axes plot."""
+"""Matplotlib figures written to PNG (Agg backend): a titled image grid and a labelled one-axes plot,
+each written whole or not at all (:func:`~stealth_ns.json_io.atomic_path`: a full disk leaves no cut
+picture, and is a one-line StealthNSError naming the file)."""
 
 from __future__ import annotations
 
@@ -6,6 +8,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from stealth_ns.json_io import atomic_path
 
 
 def figure_grid(path: Path, rows: list[list[tuple[str, np.ndarray]]]) -> Path:
@@ -27,14 +31,12 @@ def figure_grid(path: Path, rows: list[list[tuple[str, np.ndarray]]]) -> Path:
             axes[r][c].imshow(image, interpolation="nearest")
             axes[r][c].set_title(title, fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
     return path
 
 
 def save_plot(fig: Any, ax: Any, path: Path, xlabel: str, ylabel: str, title: str) -> None:
     """Label a one-axes matplotlib figure (grid, legend), write it to ``path`` (PNG) and close it."""
-    import matplotlib.pyplot as plt
 
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
@@ -42,5 +44,15 @@ def save_plot(fig: Any, ax: Any, path: Path, xlabel: str, ylabel: str, title: st
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
+
+
+def _save(fig: Any, path: Path) -> None:
+    """Write ``fig`` to ``path`` (PNG, 120 dpi) whole or not at all, and close it."""
+    import matplotlib.pyplot as plt
+
+    try:
+        with atomic_path(Path(path)) as tmp:
+            fig.savefig(tmp, dpi=120)
+    finally:
+        plt.close(fig)

@@ -7,10 +7,10 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.errors import StealthNSError, write_error
 from stealth_ns.file_manifest import (
     files_under,
     foreign_files,
@@ -88,6 +88,21 @@ def remove_tree(path: Path, output: Path) -> None:
         path.unlink()
     elif path.exists():
         shutil.rmtree(path)
+
+
+def unfinished(
+    err: OSError | StealthNSError, output: Path, what: str, remove: Callable[[], object]
+) -> StealthNSError:
+    """The one line of a command whose files could not all be written into ``output`` (a full disk:
+    ``err``), once ``remove()`` has taken away what it wrote so far, so that nothing cut short is left
+    looking finished. ``remove`` returns whether it removed anything; ``what`` names the output
+    ("report", "scan")."""
+    line = write_error(err.filename or output, err) if isinstance(err, OSError) else err
+    try:
+        removed = remove()
+    except (OSError, StealthNSError):
+        return StealthNSError(f"{line}; the unfinished {what} in {output} could not be removed")
+    return StealthNSError(f"{line}; the unfinished {what} was removed" if removed else str(line))
 
 
 # ------------------------------------------------------------------ a command's files in its --output

@@ -35,7 +35,7 @@ from stealth_ns.defences.detection import detection_metrics
 from stealth_ns.defend.evaluate import Evaluator, defeat_metrics, target_of
 from stealth_ns.gaussian_ply import write_gaussian_ply
 from stealth_ns.gaussian_transform import transform_cloud
-from stealth_ns.json_io import json_safe, write_json_atomic
+from stealth_ns.json_io import json_safe, write_json_atomic, write_text_atomic
 from stealth_ns.output_folder import claim_output, record_output
 from stealth_ns.runs.imported import ImportedModel, load_model
 from stealth_ns.runs.loaded import attack_record
@@ -217,7 +217,7 @@ def run_bench_scan(
         rows.append(scan_run(run, cfg, ply))
         print(f"  {rows[-1]['verdict']} {rows[-1]['named_views']} (right: {rows[-1]['right']})", flush=True)
         write_json_atomic(output / RESULTS_FILE, json_safe({"config": vars(cfg), "rows": rows}))
-    (output / TABLE_FILE).write_text("\n".join(table_lines(rows, cfg)) + "\n", encoding="utf-8")
+    write_text_atomic(output / TABLE_FILE, "\n".join(table_lines(rows, cfg)) + "\n")
     plot_roc(output / ROC_FILE, rows)
     record_output(output, RECORD, WRITTEN_BY, files, folders)
     return rows

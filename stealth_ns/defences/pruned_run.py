@@ -20,7 +20,7 @@ import yaml
 from stealth_ns.checkpoints import read_checkpoint, save_checkpoint
 from stealth_ns.fingerprint import FINGERPRINT_FILE
 from stealth_ns.gaussian_rows import select_rows
-from stealth_ns.json_io import write_json_atomic
+from stealth_ns.json_io import write_json_atomic, write_text_atomic
 from stealth_ns.output_folder import remove_tree
 from stealth_ns.safe_config import load_config
 
@@ -69,7 +69,7 @@ def write_pruned_run(
     save_checkpoint(
         base / config.relative_model_dir / checkpoint.name, {"step": loaded["step"], "pipeline": state}
     )
-    (base / "config.yml").write_text(yaml.dump(config), encoding="utf-8")
+    write_text_atomic(base / "config.yml", yaml.dump(config))
     if (run_dir / "attack").is_dir():
         shutil.copytree(run_dir / "attack", base / "attack")
     if (run_dir / FINGERPRINT_FILE).is_file():

@@ -10,7 +10,7 @@ import torch
 
 from stealth_ns.defend.rule import DEFEAT_V_TEST_COST, lowest_within_cost
 from stealth_ns.figures import figure_grid, save_plot
-from stealth_ns.json_io import atomic_path, write_text_atomic
+from stealth_ns.json_io import write_text_atomic
 from stealth_ns.runs.loaded import render
 
 if TYPE_CHECKING:
@@ -192,14 +192,11 @@ def write_outputs(output: Path, result: dict[str, Any], target: Target, scored: 
     figures = {}
     is_poison = poison_tags(target.model)
     if scored and 0 < int(is_poison.sum()) < is_poison.shape[0]:
-        with atomic_path(output / FIGURES["roc"]) as tmp:
-            _plot_roc(tmp, scored, is_poison)
+        _plot_roc(output / FIGURES["roc"], scored, is_poison)
         figures["roc"] = FIGURES["roc"]
-    with atomic_path(output / FIGURES["curves"]) as tmp:
-        _plot_curves(tmp, result)
+    _plot_curves(output / FIGURES["curves"], result)
     figures["curves"] = FIGURES["curves"]
-    with atomic_path(output / FIGURES["poisoned_view"]) as tmp:
-        _poisoned_view_grid(tmp, result, target, scored)
+    _poisoned_view_grid(output / FIGURES["poisoned_view"], result, target, scored)
     figures["poisoned_view"] = FIGURES["poisoned_view"]
     result["figures"] = figures
     write_text_atomic(output / TABLE_FILE, render_table(result))

@@ -22,11 +22,12 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.defend.stealth import stealth_line
-from stealth_ns.errors import StealthNSError, write_error
+from stealth_ns.errors import StealthNSError
 from stealth_ns.figures import figure_grid, save_plot
 from stealth_ns.image_io import save_png
-from stealth_ns.json_io import atomic_path, json_safe, write_json_atomic, write_text_atomic
+from stealth_ns.json_io import json_safe, write_json_atomic, write_text_atomic
 from stealth_ns.metrics import psnr
+from stealth_ns.output_folder import unfinished
 from stealth_ns.pipeline import rgb_float
 from stealth_ns.provenance import software_and_hardware
 from stealth_ns.report.arguments import check_arguments
@@ -154,17 +155,7 @@ def write_report(
             report["defences"] = report_section(defend_result, Path(defend), output)
         return _write_files(pair, report, output)
     except (OSError, StealthNSError) as err:
-        raise _unfinished(err, output) from None
-
-
-def _unfinished(err: OSError | StealthNSError, output: Path) -> StealthNSError:
-    """The one line of a report that could not be written, once its files written so far are removed."""
-    line = write_error(err.filename or output, err) if isinstance(err, OSError) else err
-    try:
-        removed = clear_previous_report(output)
-    except StealthNSError:
-        return StealthNSError(f"{line}; the unfinished report in {output} could not be removed")
-    return StealthNSError(f"{line}; the unfinished report was removed" if removed else str(line))
+        raise unfinished(err, output, "report", lambda: clear_previous_report(output)) from None
 
 
 def _write_files(pair: RunPair, report: dict[str, Any], output: Path) -> dict[str, Any]:
@@ -176,13 +167,11 @@ def _write_files(pair: RunPair, report: dict[str, Any], output: Path) -> dict[st
     if strip:
         kinds = ("ground truth", "clean", "poisoned")
         rows = [[(f"{s['name']} {kind}", s["arrays"][k]) for s in strip] for k, kind in enumerate(kinds)]
-        with atomic_path(output / "heldout_views.png") as tmp:
-            figure_grid(tmp, rows)
+        figure_grid(output / "heldout_views.png", rows)
     for s in strip:
         del s["arrays"]
     curve = neighbour_curve(pair)
-    with atomic_path(output / "neighbour_curve.png") as tmp:
-        _plot_neighbour_curve(tmp, curve)
+    _plot_neighbour_curve(output / "neighbour_curve.png", curve)
 
     report["neighbour_views"] = curve
     report["environment"] = software_and_hardware()
@@ -228,8 +217,7 @@ def _poisoned_views(pair: RunPair, report: dict[str, Any], output: Path) -> dict
                 ("illusion mask", panels["mask"]),
             ]
         )
-    with atomic_path(output / "poisoned_views.png") as tmp:
-        figure_grid(tmp, view_rows)
+    figure_grid(output / "poisoned_views.png", view_rows)
     return view_files
 
 

@@ -24,12 +24,12 @@ import torch
 
 from stealth_ns.defences import detection
 from stealth_ns.defences.pruned_run import write_pruned_run
-from stealth_ns.errors import StealthNSError, write_error
+from stealth_ns.errors import StealthNSError
 from stealth_ns.gaussian_ply import write_gaussian_ply
 from stealth_ns.html_page import render_page
 from stealth_ns.image_io import save_png
 from stealth_ns.json_io import atomic_path, json_safe, write_json_atomic, write_text_atomic
-from stealth_ns.output_folder import claim_output, record_output, remove_tree
+from stealth_ns.output_folder import claim_output, record_output, remove_tree, unfinished
 from stealth_ns.provenance import software_and_hardware
 from stealth_ns.scan.arguments import (
     CLEANED_PLY,
@@ -185,23 +185,17 @@ def write_outputs(result: ScanResult, output: Path, model_path: Path, data: Path
         write_json_atomic(output / SCAN_FILE, json_safe(doc))  # scan.json and scan.html last
         write_text_atomic(output / HTML_FILE, render_html(doc))
     except (OSError, StealthNSError) as err:
-        raise _unfinished(err, output, files, folders) from None
+        raise unfinished(err, output, "scan", lambda: _remove_written(output, files, folders)) from None
     record_output(output, RECORD, WRITTEN_BY, files, folders)
     return doc
 
 
-def _unfinished(
-    err: OSError | StealthNSError, output: Path, files: list[str], folders: list[str]
-) -> StealthNSError:
-    """The one line of a scan that could not be written (a full disk), once the files it wrote so far
-    are removed: nothing cut short is left looking like a finished scan."""
-    line = write_error(err.filename or output, err) if isinstance(err, OSError) else err
-    try:
-        for name in [*files, *folders]:
-            remove_tree(output / name, output)
-        images = output / IMAGES_DIR
-        if images.is_dir() and not images.is_symlink() and not any(images.iterdir()):
-            images.rmdir()
-    except (OSError, StealthNSError):
-        return StealthNSError(f"{line}; the unfinished scan in {output} could not be removed")
-    return StealthNSError(f"{line}; the unfinished scan was removed")
+def _remove_written(output: Path, files: list[str], folders: list[str]) -> bool:
+    """Remove the scan's ``files`` and ``folders`` from ``output`` (never through a link), and its
+    pictures' folder once empty."""
+    for name in [*files, *folders]:
+        remove_tree(output / name, output)
+    images = output / IMAGES_DIR
+    if images.is_dir() and not images.is_symlink() and not any(images.iterdir()):
+        images.rmdir()
+    return True
