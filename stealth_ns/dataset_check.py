@@ -349,6 +349,14 @@ def check_dataset(
     return DatasetSummary(path, len(frames), tuple(sorted(sizes)), ply, n_points, splits)
 
 
+def _check_folder(folder: Path) -> None:
+    """StealthNSError unless the dataset folder ``folder`` is a folder."""
+    if not folder.is_dir():
+        raise StealthNSError(
+            f"dataset folder {folder} " + ("is not a folder" if folder.exists() else "does not exist")
+        )
+
+
 # ---------------------------------------------------------------------------------- Blender
 BLENDER_SPLITS = {"train": "the training views", "val": "ns-train's evaluation views", "test": "ns-eval's"}
 """Blender's ``transforms_SPLIT.json`` files, with what blender-data reads each for."""
@@ -422,10 +430,7 @@ def check_blender(
     ".png", inside the folder) decodes at the size of the split's first image; the seed points of
     blender-data's ``--ply-path`` ``ply`` (relative to the folder), if given, are usable."""
     folder = Path(folder).expanduser()
-    if not folder.is_dir():
-        raise StealthNSError(
-            f"dataset folder {folder} " + ("is not a folder" if folder.exists() else "does not exist")
-        )
+    _check_folder(folder)
     present = [s for s in BLENDER_SPLITS if s in splits or (folder / f"transforms_{s}.json").is_file()]
     counts, sizes, positions, origins = {}, set(), [], Origins()
     for split in present:
@@ -453,13 +458,10 @@ def _colmap_model(folder: Path) -> str | None:
 def _check_model_folder(folder: Path, model: str) -> None:
     """StealthNSError unless ``folder / model`` holds a COLMAP model, saying where the folder's model is
     and which ``--colmap-path`` reads it."""
-    from stealth_ns.datasets.source import colmap_models
+    from stealth_ns.datasets.source import colmap_models, holds_colmap_model
 
-    if not folder.is_dir():
-        raise StealthNSError(
-            f"dataset folder {folder} " + ("is not a folder" if folder.exists() else "does not exist")
-        )
-    if any((folder / model / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+    _check_folder(folder)
+    if holds_colmap_model(folder / model):
         return
     default = " (nerfstudio's default --colmap-path)" if Path(model) == Path("colmap/sparse/0") else ""
     where = f"{folder / model}{default} holds no COLMAP model (cameras.bin or cameras.txt)"

@@ -24,21 +24,22 @@ COLMAP_DIRS: tuple[str, ...] = ("sparse/0", "colmap/sparse/0", "sparse")
 COLMAP_SEARCH_DEPTH = 4
 
 
+def holds_colmap_model(path: Path) -> bool:
+    """Whether the folder ``path`` holds a COLMAP model (``cameras.bin`` or ``cameras.txt``)."""
+    return any((Path(path) / f"cameras.{ext}").is_file() for ext in ("bin", "txt"))
+
+
 def colmap_models(folder: Path) -> list[str]:
-    """The folders of ``folder`` holding a COLMAP model (``cameras.bin`` or ``.txt``), relative and
+    """The folders of ``folder`` holding a COLMAP model (:func:`holds_colmap_model`), relative and
     "/"-separated: those of :data:`COLMAP_DIRS` first, then any other up to
     :data:`COLMAP_SEARCH_DEPTH` levels down (hidden folders and links to folders skipped), by name."""
-
-    def holds(path: Path) -> bool:
-        return any((path / f"cameras.{ext}").is_file() for ext in ("bin", "txt"))
-
-    found = [rel for rel in COLMAP_DIRS if holds(folder / rel)]
+    found = [rel for rel in COLMAP_DIRS if holds_colmap_model(folder / rel)]
     others = []
     for top, dirs, _ in os.walk(folder):
         depth = len(Path(top).relative_to(folder).parts)
         dirs[:] = [] if depth >= COLMAP_SEARCH_DEPTH else sorted(d for d in dirs if not d.startswith("."))
         rel = Path(top).relative_to(folder).as_posix()
-        if rel not in found and holds(Path(top)):
+        if rel not in found and holds_colmap_model(Path(top)):
             others.append(rel)
     return found + sorted(others)
 
@@ -143,7 +144,7 @@ def inspect_folder(name: str, folder: str) -> SceneSource:
         )
     for rel in COLMAP_DIRS:
         model = path / rel
-        if not any((model / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+        if not holds_colmap_model(model):
             continue
         if not (path / "images").is_dir():
             raise StealthNSError(f"scene {name}: {folder} has a COLMAP model in {rel} but no images/ folder")
