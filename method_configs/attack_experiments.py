@@ -35,7 +35,7 @@ from typing import Literal
 
 from stealth_ns.attack.noise_schedule import NoiseDecay
 
-#: Generated scenes (presets of ``stealth_ns.scenes``) the experiments run on.
+#: Generated scenes (presets of ``stealth_ns.scene_generator``) the experiments run on.
 PRESETS: tuple[str, ...] = ("orbit", "forward", "facing")
 #: Dataset folders with a declared place in the tables, and where the default ``--scenes`` looks
 #: for them (relative to the current directory).

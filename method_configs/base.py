@@ -7,13 +7,13 @@ from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
 
-from stealth_ns import nerfstudio_startup
-from stealth_ns.datamanager import StealthDataManagerConfig
-from stealth_ns.model import StealthSplatModelConfig
-from stealth_ns.optimizers import FusedAdamOptimizerConfig
-from stealth_ns.pipeline import StealthPipelineConfig
-from stealth_ns.schedulers import FloatExponentialDecaySchedulerConfig
-from stealth_ns.trainer import StealthTrainerConfig
+from stealth_ns.method import nerfstudio_startup
+from stealth_ns.method.datamanager import StealthDataManagerConfig
+from stealth_ns.method.model import StealthSplatModelConfig
+from stealth_ns.method.optimizers import FusedAdamOptimizerConfig
+from stealth_ns.method.pipeline import StealthPipelineConfig
+from stealth_ns.method.schedulers import FloatExponentialDecaySchedulerConfig
+from stealth_ns.method.trainer import StealthTrainerConfig
 
 # nerfstudio imports these configs (its entry points) just before it registers its external methods,
 # which is where every ns-train / ns-eval spent seconds in inspect.stack() (see the module)
@@ -30,7 +30,7 @@ def default_device_type() -> str:
 
 def gaussian_optimizers(max_steps: int, camera_warmup: int) -> dict:
     """splatfacto's per-parameter-group Adam settings; the means' LR decays over ``max_steps``. The
-    Gaussians' groups use the fused kernel (:mod:`stealth_ns.optimizers`)."""
+    Gaussians' groups use the fused kernel (:mod:`stealth_ns.method.optimizers`)."""
     return {
         "means": {
             "optimizer": FusedAdamOptimizerConfig(lr=1.6e-4, eps=1e-15),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 
 #: Methods with the attack pipeline (``--pipeline.attack.*``).
 METHODS: tuple[str, ...] = ("stealth-splat-lite", "stealth-splat")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from nerfstudio.plugins.types import MethodSpecification
 
+from stealth_ns.method.model import StealthSplatModelConfig
 from stealth_ns.method_configs.base import trainer_config
-from stealth_ns.model import StealthSplatModelConfig
 
 stealth_splat = MethodSpecification(
     config=trainer_config(

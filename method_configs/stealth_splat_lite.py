@@ -24,8 +24,8 @@ from __future__ import annotations
 
 from nerfstudio.plugins.types import MethodSpecification
 
+from stealth_ns.method.model import StealthSplatModelConfig
 from stealth_ns.method_configs.base import trainer_config
-from stealth_ns.model import StealthSplatModelConfig
 
 LITE_STEPS = 3000
 

@@ -18,9 +18,9 @@ import tyro
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.difficulty.rank import RankViews
-from stealth_ns.errors import StealthNSError, environment_error
-from stealth_ns.output_folder import check_file_writable
-from stealth_ns.poisoning.config import IPAConfig
+from stealth_ns.foundation.errors import StealthNSError, environment_error
+from stealth_ns.foundation.output_folder import check_file_writable
+from stealth_ns.poisoned_datasets.config import IPAConfig
 from stealth_ns.scan.config import ScanConfig
 
 
@@ -47,7 +47,7 @@ class MakeScene:
     """Replace the contents of a non-empty output folder."""
 
     def main(self) -> None:
-        from stealth_ns.scenes import make_scene
+        from stealth_ns.scene_generator import make_scene
 
         summary = make_scene(
             preset=self.preset,
@@ -125,7 +125,7 @@ class BenchTrain:
     """False: time the clean run (--pipeline.attack.enabled False) instead."""
 
     def main(self) -> None:
-        from stealth_ns.scenes import PRESETS, parse_resolution
+        from stealth_ns.scene_generator import PRESETS, parse_resolution
 
         if self.json is not None:
             check_file_writable(self.json, "--json")
@@ -298,7 +298,7 @@ class SeedPoints:
     """Seed of COLMAP's RANSAC and of the --max-points subset: the same seed gives the same PLY."""
 
     def main(self) -> None:
-        from stealth_ns.seed_points import make_seed_points
+        from stealth_ns.datasets.seed_points import make_seed_points
 
         summary = make_seed_points(
             data=self.data,
@@ -321,7 +321,7 @@ class CheckData:
     images/) or a Blender folder (transforms_train/val/test.json)."""
 
     def main(self) -> None:
-        from stealth_ns.dataset_check import check_dataset
+        from stealth_ns.datasets.check import check_dataset
 
         try:
             summary = check_dataset(self.data)
@@ -345,10 +345,10 @@ class Defend:
     options: Annotated[DefendConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=DefendConfig)
 
     def main(self) -> None:
-        from stealth_ns.defend.arguments import check_arguments
+        from stealth_ns.defence_eval.arguments import check_arguments
 
         check_arguments(self.run, self.output, self.options, self.clean)  # before torch and nerfstudio load
-        from stealth_ns.defend.command import run_defend
+        from stealth_ns.defence_eval.command import run_defend
 
         run_defend(self.run, self.output, self.options, self.clean)
         print(f"\nwrote {self.output / 'defend.json'}, {self.output / 'defend.md'} and the figures")
@@ -444,7 +444,7 @@ class PoisonDataset:
             )
         with _attack_flags_as_given():
             validate_attack_config(self.attack)  # at once, not after torch and nerfstudio load (~10 s)
-        from stealth_ns.poisoning.data_only import poison_dataset
+        from stealth_ns.poisoned_datasets.data_only import poison_dataset
 
         # --seed (the attack's) also seeds the set-up, as ns-train's --machine.seed would
         with _attack_flags_as_given():
@@ -504,7 +504,7 @@ class IpaPoison:
         if self.iterations is not None and self.iterations < 1:
             raise StealthNSError(f"--iterations must be a positive integer, got {self.iterations}")
         self.ipa.validate()  # these at once, not after torch and nerfstudio load (~10 s)
-        from stealth_ns.poisoning.ipa_splat import ipa_poison
+        from stealth_ns.poisoned_datasets.ipa_splat import ipa_poison
 
         with _attack_flags_as_given():
             summary = ipa_poison(

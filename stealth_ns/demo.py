@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.runs.training import TrainRecord, TrainSpec, train, train_progress
 
 DEMO_PRESET = "facing"
@@ -80,7 +80,7 @@ def run_demo(output: Path, iterations: int | None = None, seed: int = 0) -> Demo
     as ``output/train-NAME.log``); the report goes to ``output/report``.
     """
     from stealth_ns.report.write import write_report
-    from stealth_ns.scenes import make_scene
+    from stealth_ns.scene_generator import make_scene
 
     if iterations is not None and (isinstance(iterations, bool) or iterations < 1):
         raise StealthNSError(f"--iterations must be at least 1, got {iterations}")

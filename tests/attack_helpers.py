@@ -10,10 +10,10 @@ from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCall
 from nerfstudio.engine.optimizers import Optimizers
 
 from stealth_ns.attack.config import AttackConfig
-from stealth_ns.datamanager import StealthDataManagerConfig
+from stealth_ns.method.datamanager import StealthDataManagerConfig
+from stealth_ns.method.model import StealthSplatModelConfig
+from stealth_ns.method.pipeline import StealthPipeline, StealthPipelineConfig
 from stealth_ns.method_configs.base import gaussian_optimizers
-from stealth_ns.model import StealthSplatModelConfig
-from stealth_ns.pipeline import StealthPipeline, StealthPipelineConfig
 
 
 def build_pipeline(scene: Path, attack: AttackConfig | None = None, **model_kw) -> StealthPipeline:

@@ -50,7 +50,7 @@ def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Pa
 @pytest.fixture(scope="session")
 def tiny_orbit_scene(tmp_path_factory) -> Path:
     """16 views at 64x48 of the orbit preset (2 held out)."""
-    from stealth_ns.scenes import make_scene
+    from stealth_ns.scene_generator import make_scene
 
     def build(folder: Path) -> None:
         make_scene(preset="orbit", output=folder / "orbit_tiny", resolution="64x48", views=16, seed=0)

@@ -9,8 +9,8 @@ from nerfstudio.cameras.cameras import Cameras, CameraType
 from nerfstudio.data.scene_box import SceneBox
 from nerfstudio.engine.optimizers import Optimizers
 
+from stealth_ns.method.model import StealthSplatModel, StealthSplatModelConfig
 from stealth_ns.method_configs.base import gaussian_optimizers
-from stealth_ns.model import StealthSplatModel, StealthSplatModelConfig
 
 
 def pinhole_cameras(camera_to_worlds: torch.Tensor, width: int = 48, height: int = 32) -> Cameras:

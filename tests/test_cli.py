@@ -65,7 +65,8 @@ def test_bad_arguments_are_refused_before_torch_and_nerfstudio_load(tmp_path, ar
     argv = [a.replace("{tmp}", str(tmp_path)) for a in args]
     needle = needle.replace("{tmp}", str(tmp_path))
     code = (
-        "import sys\nfrom stealth_ns.cli import main\nfrom stealth_ns.errors import StealthNSError\n"
+        "import sys\nfrom stealth_ns.cli import main\n"
+        "from stealth_ns.foundation.errors import StealthNSError\n"
         f"try:\n    main({argv!r})\n"
         "except StealthNSError as err:\n"
         "    print(sorted(m for m in ('torch', 'nerfstudio') if m in sys.modules), err)\n"

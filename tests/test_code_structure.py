@@ -4,6 +4,8 @@
   lines, counted from its first statement after the docstring to its last line (signature and
   docstring excluded; blank lines and comments inside count);
 * no module is longer than :data:`MAX_MODULE_LINES` lines;
+* no circle among the top-level packages of ``stealth_ns`` either (``a`` imports from ``b`` and ``b``,
+  through any path, from ``a``), and at most :data:`MAX_LOOSE_MODULES` modules sit directly in it;
 * no import cycle among the ``stealth_ns`` modules (``method_configs/`` is installed as
   ``stealth_ns.method_configs``), counting **every** import statement: at module level, inside
   functions (run later, but a dependency all the same) and under ``if TYPE_CHECKING:``;
@@ -30,42 +32,26 @@ MAX_FUNCTION_LINES = 80
 MAX_MODULE_LINES = 600
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    (
-        "foundation",
-        (
-            "stealth_ns", "errors", "json_io", "image_io", "provenance", "fingerprint", "safe_config",
-            "step_timing", "malloc_tuning", "schedulers", "optimizers", "figures", "output_folder",
-            "html_page", "checkpoints", "file_manifest", "nerfstudio_startup", "thread_invariant",
-        ),
-    ),
-    (
-        "math and data",
-        (
-            "raster", "attack", "scenes", "metrics", "ssim", "densification", "gaussian_rows",
-            "dataset_check", "seed_points", "triangulation", "datasets", "defences", "gaussian_init",
-            "gaussian_ply", "gaussian_transform", "background",
-        ),
-    ),
-    (
-        "model",
-        (
-            "model", "model_losses", "render_view", "export", "model_cloud", "defences.signals",
-            "defences.posthoc", "defences.pruned_run",
-        ),
-    ),
-    ("training parts", ("datamanager", "viewer", "tensorboard_images")),
-    ("pipeline and methods", ("pipeline", "trainer", "method_configs")),
-    ("poisoning", ("poisoning",)),
+    ("foundation", ("stealth_ns", "foundation")),
+    ("rasterization", ("raster",)),
+    ("math and data", ("images", "gaussians", "attack", "scene_generator", "datasets", "difficulty")),
+    ("the nerfstudio method", ("method",)),
+    ("defences", ("defences",)),
+    ("method configs", ("method_configs",)),
+    ("poisoned datasets", ("poisoned_datasets",)),
     ("trained runs", ("runs",)),
-    ("evaluation", ("difficulty", "defend", "scan")),
+    ("evaluation", ("defence_eval", "scan")),
     ("report", ("report",)),
     ("bench", ("bench",)),
     ("commands", ("demo", "cli")),
 )  # fmt: skip
-"""The layers, lowest first, each with the modules and packages in it (names under ``stealth_ns``;
-a package's name covers its modules, the longest matching name decides, so ``defences.signals`` sits
-above the rest of ``defences``; ``stealth_ns`` itself is the package's ``__init__`` alone).
-A module may import from its own layer and the ones below, never from one above."""
+"""The layers, lowest first, each with the packages (and the few top-level modules) in it, by their
+names under ``stealth_ns`` (a package's name covers its modules; the longest matching name decides;
+``stealth_ns`` itself is the package's ``__init__`` alone). A module may import from its own layer and
+the ones below, never from one above."""
+MAX_LOOSE_MODULES = 5
+"""Most modules directly in ``stealth_ns/`` (``__init__`` included): the top level holds the
+entry points; everything else lives in a package named for its concept."""
 
 
 def source_files(sources: dict[Path, str] = SOURCES) -> dict[str, Path]:
@@ -211,6 +197,44 @@ def import_cycles(sources: dict[Path, str] = SOURCES) -> list[str]:
     return lines
 
 
+def top_package(module: str, package: str = PACKAGE) -> str:
+    """The package (or loose module) directly under ``package`` that holds ``module``."""
+    parts = module.split(".")
+    return module if len(parts) < 2 else ".".join(parts[:2])
+
+
+def package_graph(sources: dict[Path, str] = SOURCES) -> dict[str, dict[str, str]]:
+    """Top-level package -> {package it imports: one import that makes the edge (``a -> b``)}."""
+    graph: dict[str, dict[str, str]] = {}
+    for module, edges in import_graph(sources).items():
+        here = top_package(module)
+        graph.setdefault(here, {})
+        for target in edges:
+            there = top_package(target)
+            if there != here:
+                graph[here].setdefault(there, f"{module} -> {target}")
+    for edges in list(graph.values()):
+        for there in edges:
+            graph.setdefault(there, {})
+    return graph
+
+
+def package_cycles(sources: dict[Path, str] = SOURCES) -> list[str]:
+    """One line per circle among the top-level packages, with one import of each edge in it."""
+    graph = package_graph(sources)
+    lines = []
+    for component in _strongly_connected({k: dict.fromkeys(v, 0) for k, v in graph.items()}):
+        members = set(component)
+        edges = [graph[a][b] for a in component for b in sorted(graph[a]) if b in members]
+        lines.append(f"{' <-> '.join(component)}: {'; '.join(edges)}")
+    return lines
+
+
+def loose_modules(folder: Path = ROOT / PACKAGE) -> list[str]:
+    """The modules directly in the package's folder (not in a sub-package)."""
+    return sorted(path.name for path in folder.glob("*.py"))
+
+
 # ---------------------------------------------------------------------------------- layers, sizes
 
 
@@ -283,6 +307,19 @@ def test_no_import_cycle_among_the_package_modules():
     assert not found, f"{len(found)} import cycle(s) among the {PACKAGE} modules:\n" + "\n".join(found)
 
 
+def test_no_circle_among_the_packages():
+    found = package_cycles()
+    assert not found, f"{len(found)} circle(s) among the {PACKAGE} packages:\n" + "\n".join(found)
+
+
+def test_few_modules_are_left_loose_at_the_top():
+    found = loose_modules()
+    assert len(found) <= MAX_LOOSE_MODULES, (
+        f"{len(found)} modules directly in {PACKAGE}/ (at most {MAX_LOOSE_MODULES}; give each a package "
+        f"named for its concept): {', '.join(found)}"
+    )
+
+
 def test_no_module_is_longer_than_600_lines():
     found = long_modules()
     assert not found, f"{len(found)} module(s) over {MAX_MODULE_LINES} lines:\n" + "\n".join(found)
@@ -343,6 +380,10 @@ def test_the_checks_see_what_they_should(tmp_path):
         (tmp_path / "p" / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / "p" / name).write_text(text)
     sources = {tmp_path / "p": "p"}
+    (circle,) = package_cycles(sources)
+    assert circle.startswith("p.a <-> p.c <-> p.sub: ")
+    assert top_package("p.sub.b") == "p.sub" and top_package("p") == "p"
+    assert loose_modules(tmp_path / "p") == ["__init__.py", "a.py", "c.py", "d.py"]
     (cycle,) = import_cycles(sources)
     assert cycle.startswith("p.a <-> p.c <-> p.sub.b: ") and f"{tmp_path}/p/c.py:2 -> p.a" in cycle
     assert long_functions(sources) == [f"{tmp_path}/p/sub/b.py:3 f (81 lines)"]
@@ -353,7 +394,7 @@ def test_the_checks_see_what_they_should(tmp_path):
     assert layer_of("p.sub.b", "p", layers) == 2 and layer_of("p.sub", "p", layers) == 1
     assert layer_of("p", "p", layers) == 0 and layer_of("q", "p", layers) is None
     assert layer_of("p.other", "p", layers) is None  # the root package's entry is its __init__ alone
-    assert layer_of("stealth_ns.defences.signals") > layer_of("stealth_ns.defences.scores")
+    assert layer_of("stealth_ns.defences.signals") > layer_of("stealth_ns.method.model")
     assert (
         layer_of("stealth_ns.bench.plan") > layer_of("stealth_ns.report.write") > layer_of("stealth_ns.runs")
     )
@@ -393,5 +434,6 @@ def test_upward_imports_and_unplaced_modules_are_found(tmp_path, monkeypatch):
 
 
 if __name__ == "__main__":
-    found = long_functions() + long_modules() + import_cycles() + unplaced_modules() + upward_imports()
+    found = long_functions() + long_modules() + import_cycles() + package_cycles() + unplaced_modules()
+    found += upward_imports()
     print("\n".join(found) or "no offenders")

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 
 from stealth_ns.cli import main
-from stealth_ns.dataset_check import check_colmap, check_dataset
+from stealth_ns.datasets.check import check_colmap, check_dataset
 from stealth_ns.datasets.source import colmap_models
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 
 
 def _colmap_folder(root: Path, *models: str) -> Path:
@@ -28,7 +28,7 @@ def _colmap_folder(root: Path, *models: str) -> Path:
 
 def _start_up(dataparser) -> str:
     """The one line ns-train's start-up check stops with for ``dataparser``."""
-    from stealth_ns.datamanager import StealthDataManagerConfig, check_nerfstudio_data
+    from stealth_ns.method.datamanager import StealthDataManagerConfig, check_nerfstudio_data
 
     with pytest.raises(SystemExit) as exc:
         check_nerfstudio_data(StealthDataManagerConfig(dataparser=dataparser))
@@ -82,7 +82,7 @@ def test_nerfstudio_data_on_a_colmap_folder_names_the_colmap_dataparser(tmp_path
 
 # ---------------------------------------------------------------------------------- ipa-poison --every
 def test_attack_epochs_run_at_every_multiple_of_every():
-    from stealth_ns.poisoning.ipa import attack_epoch_steps, check_epochs
+    from stealth_ns.poisoned_datasets.ipa import attack_epoch_steps, check_epochs
 
     assert attack_epoch_steps(10, 20) == [0, 10]
     assert attack_epoch_steps(200, 3000)[-1] == 2800

@@ -70,7 +70,7 @@ t gsplat-ready
 # the installed package (stealth_ns.method_configs exists only installed).
 if [ "$TESTS" != 0 ] && fits 130 "make test-gpu's tests"; then
     # the whole output in tests.log; warnings off so that the summary line stays in the tail
-    timeout 300 "$BIN/pytest" -m cuda tests/test_cuda.py -p no:cacheprovider -p no:warnings -q -rfEs \
+    timeout 300 "$BIN/pytest" -m cuda tests/method/test_cuda.py -p no:cacheprovider -p no:warnings -q -rfEs \
         --durations=5 >"$OUT/tests.log" 2>&1
     echo "pytest exit status $?"
     tail -15 "$OUT/tests.log"

@@ -1,7 +1,7 @@
 """Pure-function math, assets and settings of the StealthAttack poisoning method (paper section 3).
 
 Modules (no nerfstudio imports; numpy / scipy / scikit-image / torch only; ``config`` and
-``noise_schedule`` load without torch; ``tests/test_attack_options.py`` checks both):
+``noise_schedule`` load without torch; ``tests/attack/test_attack_options.py`` checks both):
 
 * :mod:`stealth_ns.attack.config` -- :class:`~stealth_ns.attack.config.AttackConfig`, every option
   (``--pipeline.attack.*``), a plain dataclass; :mod:`stealth_ns.attack.validation` checks them.

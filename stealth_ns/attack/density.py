@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from stealth_ns.json_io import write_npz_atomic
+from stealth_ns.foundation.json_io import write_npz_atomic
 
 __all__ = [
     "DensityGrid",

@@ -24,8 +24,8 @@ from scipy import ndimage
 from skimage import color, filters, morphology
 from skimage.transform import resize
 
-from stealth_ns.errors import StealthNSError
-from stealth_ns.image_io import read_image, split_alpha, to_float32
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.images.io import read_image, split_alpha, to_float32
 
 __all__ = [
     "BUILTIN_ILLUSIONS",
@@ -272,7 +272,7 @@ def builtin_illusion(name: str) -> Illusion:
 
 
 def _read_checked(path: Path, what: str) -> np.ndarray:
-    """:func:`~stealth_ns.image_io.read_image`, refusing what is not one 2-D grey / grey+alpha / RGB /
+    """:func:`~stealth_ns.images.io.read_image`, refusing what is not one 2-D grey / grey+alpha / RGB /
     RGBA image of numbers."""
     arr = read_image(path, what)
     if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 2, 3, 4)):
@@ -290,7 +290,7 @@ def load_illusion(image_path: str | Path, mask_path: str | Path | None = None) -
       RGBA (its alpha if not fully opaque, else its colour) / bool, normalised to [0, 1] by its dtype's
       range, is the alpha; the mask is ``alpha > 0.5``.
     * Greyscale images are replicated to RGB. Pixel values are scaled by their dtype's range
-      (:func:`~stealth_ns.image_io.to_float32`: uint8 by 255, uint16 by 65535; floats are taken as
+      (:func:`~stealth_ns.images.io.to_float32`: uint8 by 255, uint16 by 65535; floats are taken as
       [0, 1] and clipped).
 
     Raises:

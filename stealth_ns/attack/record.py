@@ -31,9 +31,9 @@ import torch
 from torch import Tensor
 
 from stealth_ns.attack.density import DensityGrid
-from stealth_ns.errors import StealthNSError
-from stealth_ns.image_io import read_image, save_png, to_float32
-from stealth_ns.json_io import json_safe, write_npz_atomic, write_text_atomic
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.json_io import json_safe, write_npz_atomic, write_text_atomic
+from stealth_ns.images.io import read_image, save_png, to_float32
 
 RECORD_FILE = "attack.json"
 VIEWS_FILE = "views.npz"

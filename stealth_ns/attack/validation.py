@@ -1,7 +1,7 @@
 """Up-front checks of every :class:`~stealth_ns.attack.config.AttackConfig` option.
 
 :func:`validate_attack_config` is pure (no data, no files read except an illusion mask's
-existence) and raises :class:`~stealth_ns.errors.StealthNSError` with one line naming the option as
+existence) and raises :class:`~stealth_ns.foundation.errors.StealthNSError` with one line naming the option as
 the command line spells it (``--pipeline.attack.t-min``), the value given and the allowed range.
 The pipeline calls it when it is built, before any data is loaded, so that a bad value never
 ends in a traceback (or, worse, in a silently useless attack) after start-up.
@@ -15,7 +15,7 @@ from dataclasses import fields
 from typing import Any
 
 from stealth_ns.attack.config import AttackConfig
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 
 __all__ = ["MAX_GRID_RESOLUTION", "MAX_SAMPLES_PER_RAY", "option_name", "validate_attack_config"]
 

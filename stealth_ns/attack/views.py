@@ -21,7 +21,7 @@ from pathlib import PurePath
 import numpy as np
 import torch
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 
 __all__ = [
     "median_view",

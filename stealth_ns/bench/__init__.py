@@ -4,7 +4,7 @@ The presets (:mod:`stealth_ns.method_configs.attack_experiments`) say which runs
 shows. This package resolves ``--scenes`` (generated presets, and dataset folders ``NAME=PATH``
 in nerfstudio-data, COLMAP or Blender format, used in place), plans the runs of the chosen
 tables and scenes (a run shared by several tables is trained once), generates the presets and
-triangulates the seed points of folders without them (:mod:`stealth_ns.seed_points`, into a
+triangulates the seed points of folders without them (:mod:`stealth_ns.datasets.seed_points`, into a
 seeded copy under ``OUTPUT/scenes``), trains what is missing with a progress bar across runs
 (each ``ns-train``'s output goes to ``ns-train.log`` in its run folder; one after another, or
 as Ray tasks on a cluster with ``--executor ray``: :mod:`stealth_ns.bench.executors`), reuses

@@ -15,8 +15,8 @@ from stealth_ns.bench.poisoned_copies import ensure_copies
 from stealth_ns.bench.results import write_results
 from stealth_ns.datasets.generated import ensure_scene
 from stealth_ns.datasets.seeded import ensure_seed_points
-from stealth_ns.errors import StealthNSError
-from stealth_ns.json_io import json_safe
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.json_io import json_safe
 from stealth_ns.method_configs.attack_experiments import (
     ATTACKS,
     clean_run,

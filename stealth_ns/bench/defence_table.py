@@ -17,10 +17,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from stealth_ns.defence_eval.outputs import fmt, pct
+from stealth_ns.defence_eval.result_file import DEFEND_FILE
 from stealth_ns.defences.config import DEFENCES, DefendConfig
-from stealth_ns.defend.outputs import fmt, pct
-from stealth_ns.defend.result_file import DEFEND_FILE
-from stealth_ns.json_io import write_json_atomic
+from stealth_ns.foundation.json_io import write_json_atomic
 
 TABLE_KEY = "D"
 TITLE = "Table D: stealth under defences"
@@ -41,7 +41,7 @@ def cached_defend(
 ) -> tuple[dict, bool]:
     """``stealth-ns defend`` of one finished run into ``out`` (its output in ``defend.log``), or the
     earlier result there when made for the same run (``run_id``: the run's marker) and settings."""
-    from stealth_ns.defend.command import run_defend
+    from stealth_ns.defence_eval.command import run_defend
 
     stamp = json.loads(json.dumps({"run_id": run_id, "settings": asdict(cfg)}))  # as read back
     try:

@@ -17,8 +17,8 @@ from stealth_ns.bench.executors import Executor, Job, Outcome, make_executor
 from stealth_ns.bench.plan import Plan, PlannedRun
 from stealth_ns.bench.results import run_entry, write_outputs
 from stealth_ns.bench.tables import fmt_value
-from stealth_ns.errors import StealthNSError
-from stealth_ns.json_io import json_safe, write_json_atomic
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.json_io import json_safe, write_json_atomic
 from stealth_ns.method_configs.attack_experiments import (
     clean_run,
 )

@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.runs.training import TrainRecord, TrainSpec, finished_record, train
 
 EXECUTORS: tuple[str, ...] = ("local", "ray")

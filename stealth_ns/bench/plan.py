@@ -16,7 +16,7 @@ from stealth_ns.bench.scenes import kde_views, parse_scenes, scene_fingerprint
 from stealth_ns.datasets.generated import scene_dir, scene_is_ready
 from stealth_ns.datasets.seeded import read_seed_points, seeded_dir
 from stealth_ns.datasets.source import SceneSource
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.method_configs.attack_experiments import (
     ATTACKS,
     KDE_LEVELS,

@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 from stealth_ns.attack.normal_draw import NOISE_GENERATOR
-from stealth_ns.errors import StealthNSError
-from stealth_ns.json_io import write_json_atomic
-from stealth_ns.poisoning.config import IPAConfig
-from stealth_ns.poisoning.dataset_copy import RECORD_DIR, RECORD_FILE
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.json_io import write_json_atomic
+from stealth_ns.poisoned_datasets.config import IPAConfig
+from stealth_ns.poisoned_datasets.dataset_copy import RECORD_DIR, RECORD_FILE
 from stealth_ns.runs import training as runs
 from stealth_ns.runs.training import bin_path
 

@@ -16,11 +16,11 @@ from stealth_ns.bench.stealth_plot import STEALTH_PLOT, plot_stealth
 from stealth_ns.bench.tables import NOT_IMPLEMENTED, SUCCESS_RULE, render_markdown, table_data
 from stealth_ns.datasets.generated import scene_info
 from stealth_ns.datasets.source import SceneSource
-from stealth_ns.json_io import json_safe, write_json_atomic
+from stealth_ns.foundation.json_io import json_safe, write_json_atomic
+from stealth_ns.foundation.provenance import software_and_hardware
 from stealth_ns.method_configs.attack_experiments import (
     scene_kind,
 )
-from stealth_ns.provenance import software_and_hardware
 
 
 def _git_commit() -> str | None:

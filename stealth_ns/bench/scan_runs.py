@@ -1,6 +1,6 @@
 """``stealth-ns bench scan``'s inputs, checked before anything slow (before torch and nerfstudio load):
 its options, the ``bench attack`` results it reads (one line for a file that is not one), and the
-files it writes into ``--output`` (:func:`~stealth_ns.output_folder.claim_output`'s rules: never
+files it writes into ``--output`` (:func:`~stealth_ns.foundation.output_folder.claim_output`'s rules: never
 through a link, never over an input or a file it did not write, recorded in :data:`RECORD`)."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.checkpoints import checkpoint_steps
-from stealth_ns.errors import StealthNSError
-from stealth_ns.output_folder import check_output_plan, check_outside, check_writable
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.output_folder import check_output_plan, check_outside, check_writable
+from stealth_ns.method.checkpoints import checkpoint_steps
 from stealth_ns.scan.config import ScanConfig
 
 RESULTS_FILE = "scan-results.json"
@@ -19,7 +19,7 @@ TABLE_FILE = "scan.md"
 ROC_FILE = "roc.png"
 #: ``--as-ply``'s PLYs, a folder the bench scan owns whole.
 PLYS_DIR = "plys"
-#: The record of the files the bench scan wrote into --output (:mod:`stealth_ns.file_manifest`).
+#: The record of the files the bench scan wrote into --output (:mod:`stealth_ns.foundation.file_manifest`).
 RECORD = ".stealth-ns-bench-scan.json"
 WRITTEN_BY = "stealth-ns bench scan"
 

@@ -31,12 +31,12 @@ from stealth_ns.bench.scan_runs import (
 )
 from stealth_ns.datasets.frames import frame_transforms
 from stealth_ns.datasets.source import inspect_folder
+from stealth_ns.defence_eval.evaluate import Evaluator, defeat_metrics, target_of
 from stealth_ns.defences.detection import detection_metrics
-from stealth_ns.defend.evaluate import Evaluator, defeat_metrics, target_of
-from stealth_ns.gaussian_ply import write_gaussian_ply
-from stealth_ns.gaussian_transform import transform_cloud
-from stealth_ns.json_io import json_safe, write_json_atomic, write_text_atomic
-from stealth_ns.output_folder import claim_output, record_output
+from stealth_ns.foundation.json_io import json_safe, write_json_atomic, write_text_atomic
+from stealth_ns.foundation.output_folder import claim_output, record_output
+from stealth_ns.gaussians.ply import write_gaussian_ply
+from stealth_ns.gaussians.transform import transform_cloud
 from stealth_ns.runs.imported import ImportedModel, load_model
 from stealth_ns.runs.loaded import attack_record
 from stealth_ns.scan.config import ScanConfig
@@ -187,7 +187,7 @@ def plot_roc(path: Path, rows: list[dict[str, Any]]) -> None:
     from torchmetrics.functional.classification import binary_roc
 
     from stealth_ns.defences.detection import rank_scores
-    from stealth_ns.figures import save_plot
+    from stealth_ns.foundation.figures import save_plot
 
     kept = [r for r in rows if not r["attack_failed"]]
     scores = np.array([r["largest_region"] for r in kept])

@@ -10,10 +10,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.dataset_check import check_colmap, check_dataset
+from stealth_ns.datasets.check import check_colmap, check_dataset
 from stealth_ns.datasets.source import SceneSource, inspect_folder
-from stealth_ns.errors import StealthNSError
-from stealth_ns.json_io import write_json_atomic
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.json_io import write_json_atomic
 from stealth_ns.method_configs.attack_experiments import (
     DEFAULT_SCENES,
     FOLDERS,
@@ -131,8 +131,8 @@ def scene_fingerprint(plan_dir: Path, src: SceneSource, record: dict[str, Any] |
 
 
 def check_source(src: SceneSource) -> None:
-    """The check ns-train runs when it starts (:func:`stealth_ns.datamanager.check_nerfstudio_data`), run
-    on a dataset folder before a benchmark plans runs on it: StealthNSError with one line, naming the
+    """The check ns-train runs when it starts (:func:`stealth_ns.method.datamanager.check_nerfstudio_data`),
+    run on a dataset folder before a benchmark plans runs on it: StealthNSError with one line, naming the
     scene, for what training would refuse. Blender folders are converted first (nothing to check)."""
     if src.path is None:
         return

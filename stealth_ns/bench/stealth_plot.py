@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.defend.stealth import KEY_DETECTORS
-from stealth_ns.figures import save_plot
+from stealth_ns.defence_eval.stealth import KEY_DETECTORS
+from stealth_ns.foundation.figures import save_plot
 
 STEALTH_PLOT = "stealth.png"
 

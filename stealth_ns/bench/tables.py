@@ -7,8 +7,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from stealth_ns.defend.rule import DEFEAT_RULE
-from stealth_ns.defend.stealth import KEY_DETECTORS
+from stealth_ns.defence_eval.rule import DEFEAT_RULE
+from stealth_ns.defence_eval.stealth import KEY_DETECTORS
 from stealth_ns.method_configs.attack_experiments import (
     TableSpec,
 )
@@ -175,7 +175,7 @@ def _runs_table(runs: dict[str, dict[str, Any]]) -> str:
 
 def stealth_table(runs: dict[str, dict[str, Any]]) -> str:
     """Markdown: every attacked run with metrics, its success and its stealth under the post-hoc
-    defences (:mod:`stealth_ns.defend.stealth`); empty when no run has metrics."""
+    defences (:mod:`stealth_ns.defence_eval.stealth`); empty when no run has metrics."""
     header = [
         "Run", "V-illusory PSNR", "Drop", "Success", *(f"AUROC {n}" for n in KEY_DETECTORS),
         "Strongest defence (≤ 0.5 dB)", "V-illusory after", "Defeated by", "Stealthy success",

@@ -44,8 +44,8 @@ from typing import Any
 
 import torch
 
-from stealth_ns.errors import StealthNSError
-from stealth_ns.step_timing import TIMER, StepTimer
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.step_timing import TIMER, StepTimer
 
 #: Leaf phases in the order printed; they add up to the step.
 PHASES = (
@@ -220,8 +220,8 @@ def summarise(steps: list[dict[str, float]]) -> tuple[dict[str, float], dict[str
 
 def _bench_config(data: Path, output: Path, method: str, seed: int, iterations: int, attack: bool) -> Any:
     from stealth_ns.attack.config import AttackConfig
-    from stealth_ns.poisoning.dataset_copy import open_source
-    from stealth_ns.poisoning.setup import trainer_config
+    from stealth_ns.poisoned_datasets.dataset_copy import open_source
+    from stealth_ns.poisoned_datasets.setup import trainer_config
 
     config = trainer_config(open_source(data), AttackConfig(enabled=attack), method, seed)
     config.max_num_iterations = iterations
@@ -283,7 +283,7 @@ def run_train_benchmark(
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="stealth-ns-bench-train-") as tmp:
         if data is None:
-            from stealth_ns.scenes import make_scene
+            from stealth_ns.scene_generator import make_scene
 
             data = Path(tmp) / preset
             made = make_scene(preset=preset, output=data, seed=seed, resolution=resolution)
@@ -292,7 +292,7 @@ def run_train_benchmark(
             scene = str(data)
         data = _with_seed_points(data, Path(tmp) / "seeded")
         scene += "" if attack else ", clean run"
-        from stealth_ns.poisoning.setup import setup_trainer
+        from stealth_ns.poisoned_datasets.setup import setup_trainer
 
         config = _bench_config(data, Path(tmp) / "runs", method, seed, warmup + steps + 1, attack)
         trainer = setup_trainer(config)

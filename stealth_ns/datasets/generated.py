@@ -49,7 +49,7 @@ def ensure_scene(path: Path, preset: str, seed: int, scene_options: dict[str, An
     """Generate the scene unless a complete one is there."""
     if scene_is_ready(path, preset, seed, scene_options):
         return
-    from stealth_ns.scenes import make_scene
+    from stealth_ns.scene_generator import make_scene
 
     print(f"generating the {preset} scene in {path}", flush=True)
     make_scene(preset=preset, output=path, seed=seed, overwrite=True, **(scene_options or {}))

@@ -1,7 +1,7 @@
 """Which files a dataset's transforms file may name: those inside its folder (links resolved), or a
 file another dataset on this machine declares (a seeded copy names its source's images).
 
-Split out of :mod:`stealth_ns.dataset_check`, which re-exports :func:`check_references` and
+Split out of :mod:`stealth_ns.datasets.check`, which re-exports :func:`check_references` and
 :func:`read_json_object`.
 """
 
@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 
 __all__ = [
     "FRAME_FILE_KEYS", "Origins", "check_frame_references", "check_reference", "check_references",

@@ -1,6 +1,6 @@
 """A dataset's seed points checked before training: one line naming the file and the point.
 
-Split out of :mod:`stealth_ns.dataset_check` (which re-exports these names), so that every dataset
+Split out of :mod:`stealth_ns.datasets.check` (which re-exports these names), so that every dataset
 format's check -- nerfstudio-data's ``ply_file_path``, COLMAP's ``points3D``, blender-data's
 ``--ply-path`` -- measures its cloud against its cameras the same way.
 """
@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 
 __all__ = [
     "MAX_POINT_DISTANCE", "MIN_SEED_POINTS", "camera_spread", "check_ply", "check_seed_points",

@@ -1,5 +1,5 @@
 """Seed points triangulated for a dataset folder that has none
-(:func:`stealth_ns.seed_points.make_seed_points`), made once into a seeded copy ``ROOT/scenes/NAME``
+(:func:`stealth_ns.datasets.seed_points.make_seed_points`), made once into a seeded copy ``ROOT/scenes/NAME``
 and recorded in ``ROOT/scenes/NAME.seed-points.json``, so that later uses reuse them while the
 folder's content is the same.
 """
@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from stealth_ns.datasets.source import SceneSource
-from stealth_ns.errors import StealthNSError
-from stealth_ns.fingerprint import file_sha256
-from stealth_ns.json_io import write_json_atomic
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.fingerprint import file_sha256
+from stealth_ns.foundation.json_io import write_json_atomic
 
 #: ``OUTPUT/scenes/NAME`` + this: the record of a dataset folder's triangulated seed points.
 SEED_POINTS_MARKER = ".seed-points.json"
@@ -56,10 +56,10 @@ def ensure_seed_points(output: Path, source: SceneSource) -> dict[str, Any]:
     if record is not None:
         return record
     try:
-        from stealth_ns.seed_points import make_seed_points
+        from stealth_ns.datasets.seed_points import make_seed_points
     except ImportError as err:
         raise StealthNSError(
-            f"cannot make seed points: stealth_ns.seed_points is not available ({err})"
+            f"cannot make seed points: stealth_ns.datasets.seed_points is not available ({err})"
         ) from None
     folder = seeded_dir(output, source.name)
     print(f"triangulating the seed points of {source.name} ({source.path}) into {folder}", flush=True)

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from stealth_ns.errors import StealthNSError
-from stealth_ns.fingerprint import file_sha256
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.fingerprint import file_sha256
 
 FolderFormat = Literal["nerfstudio-data", "colmap", "blender"]
 
@@ -56,8 +56,9 @@ class SceneSource:
     format: FolderFormat | None = None
     seed_points: Literal["generated", "ply_file_path", "colmap", "triangulated"] = "generated"
     """Where the seed points come from: a preset's generator, the transforms.json's
-    ``ply_file_path``, the COLMAP model's points3D, or :func:`stealth_ns.seed_points.make_seed_points`
-    (a seeded copy in ``OUTPUT/scenes/NAME`` that references the folder's images)."""
+    ``ply_file_path``, the COLMAP model's points3D, or
+    :func:`stealth_ns.datasets.seed_points.make_seed_points` (a seeded copy in ``OUTPUT/scenes/NAME`` that
+    references the folder's images)."""
     colmap_path: str | None = None
     """The COLMAP model folder, relative to ``path``."""
     files: tuple[tuple[str, str], ...] = ()

@@ -19,7 +19,7 @@ POSTHOC: tuple[str, ...] = (
 #: Defences applied while training (the model is retrained).
 TRAINING_TIME: tuple[str, ...] = ("input-filter",)
 DEFENCES: tuple[str, ...] = POSTHOC + TRAINING_TIME
-#: Image filters of the input-filter defence (:mod:`stealth_ns.defences.input_filter`).
+#: Image filters of the input-filter defence (:mod:`stealth_ns.images.input_filter`).
 INPUT_FILTERS: tuple[str, ...] = ("wavelet", "gaussian")
 
 

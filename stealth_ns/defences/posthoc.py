@@ -31,7 +31,7 @@ from stealth_ns.defences import scores
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.defences.detection import prune_mask_threshold
 from stealth_ns.defences.signals import FineTune, camera_geometry, gradient_energy_matrix, view_weight_matrix
-from stealth_ns.model import TRAINABLE, StealthSplatModel
+from stealth_ns.method.model import TRAINABLE, StealthSplatModel
 
 DESCRIPTIONS: dict[str, str] = {
     "zscore": "robust z-score of position, scale, volume and opacity (statCull)",

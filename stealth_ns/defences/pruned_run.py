@@ -5,7 +5,7 @@ nerfstudio's: ``ROOT/DEFENCE/METHOD/TIMESTAMP/`` with ``config.yml`` (its output
 there, the dataset path made absolute), ``nerfstudio_models/step-N.ckpt`` (the pipeline's state
 only: it can be evaluated and viewed, not resumed), the attack record (``attack/``) and dataset
 fingerprint copied, and ``defence.json`` saying what was pruned. ``ns-export gaussian-splat`` of it
-writes a PLY with the poison tag (:mod:`stealth_ns.export`).
+writes a PLY with the poison tag (:mod:`stealth_ns.method.export`).
 """
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ from typing import Any
 import torch
 import yaml
 
-from stealth_ns.checkpoints import read_checkpoint, save_checkpoint
-from stealth_ns.fingerprint import FINGERPRINT_FILE
-from stealth_ns.gaussian_rows import select_rows
-from stealth_ns.json_io import write_json_atomic, write_text_atomic
-from stealth_ns.output_folder import remove_tree
-from stealth_ns.safe_config import load_config
+from stealth_ns.foundation.fingerprint import FINGERPRINT_FILE
+from stealth_ns.foundation.json_io import write_json_atomic, write_text_atomic
+from stealth_ns.foundation.output_folder import remove_tree
+from stealth_ns.gaussians.rows import select_rows
+from stealth_ns.method.checkpoints import read_checkpoint, save_checkpoint
+from stealth_ns.method.safe_config import load_config
 
 GAUSS_PREFIX = "_model.gauss_params."
 STRATEGY_STATE = "_model._extra_state"
@@ -51,7 +51,7 @@ def write_pruned_run(
     """Write the run ``config_path`` (final checkpoint ``checkpoint``) pruned to ``keep`` under ``root``
     as the experiment ``name``; returns its ``config.yml``. ``info`` goes into ``defence.json``. An
     earlier one is replaced, unless a symbolic link between ``within`` (the command's ``--output``;
-    default ``root``) and it leads elsewhere (:func:`~stealth_ns.output_folder.remove_tree`)."""
+    default ``root``) and it leads elsewhere (:func:`~stealth_ns.foundation.output_folder.remove_tree`)."""
     config = load_config(config_path)
     run_dir = Path(config_path).parent
     data = config.pipeline.datamanager.dataparser.data

@@ -143,7 +143,7 @@ def sor_scores(means: np.ndarray, k: int = 20) -> np.ndarray:
     Per point, ``d`` = the mean Euclidean distance to its ``k`` nearest neighbours, **the point itself
     included** (open3d's k-d tree returns the query point at distance 0 among its ``k``); then
     ``score = (d - mean(d)) / std(d)`` with the **sample** std (ddof = 1, open3d's Bessel correction)
-    over the cloud. Both facts were checked against open3d 0.20 (tests/test_defence_scores.py). With
+    over the cloud. Both facts were checked against open3d 0.20 (tests/defences/test_defence_scores.py). With
     ``N <= k`` every point uses all ``N`` points (open3d does the same).
 
     Degenerate cases where open3d differs (documented, not copied): open3d removes every point whose

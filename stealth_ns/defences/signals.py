@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from stealth_ns.attack.injection import median_scene_depth
-from stealth_ns.model import POISON_TAG, StealthSplatModel
+from stealth_ns.method.model import POISON_TAG, StealthSplatModel
 from stealth_ns.raster.projection import viewmat_from_c2w
 
 

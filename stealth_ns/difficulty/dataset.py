@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from stealth_ns.datasets.source import COLMAP_DIRS
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 
 if TYPE_CHECKING:
     pass

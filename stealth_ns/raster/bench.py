@@ -29,7 +29,7 @@ from typing import Any
 
 import torch
 
-from stealth_ns.malloc_tuning import keep_freed_memory
+from stealth_ns.foundation.malloc_tuning import keep_freed_memory
 
 __all__ = ["BenchCase", "DEFAULT_CASES", "make_synthetic_scene", "run_raster_benchmark"]
 

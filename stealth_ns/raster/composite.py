@@ -4,7 +4,7 @@
 ``torch.clamp(render + (1 - alpha) * background, 0, 1)``. On CPU float32 contiguous tensors with a
 background that needs no gradient (every training step of the CPU backends) it runs the compiled kernel
 (``raster/csrc/composite_cpu.cpp``): one pass forward and one backward instead of torch's chain of
-full-image operations, with the same values and gradients bit for bit (``tests/test_composite.py``).
+full-image operations, with the same values and gradients bit for bit (``tests/raster/test_composite.py``).
 Anywhere else it is the torch expression itself, which is also the reference.
 """
 

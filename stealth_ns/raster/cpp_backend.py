@@ -18,8 +18,8 @@ returns ``None`` and :func:`compile_error` says why.
 The kernels mirror gsplat 1.4.0's CUDA ``rasterize_to_pixels`` forward/backward (see the header of
 the C++ file for the exact semantics), its ``isect_tiles`` + ``isect_offset_encode``, and its
 projection and SH (forward and backward; ``projection.py`` is their torch reference); the same
-module holds the training loss's SSIM (``stealth_ns/ssim.py``; pytorch_msssim is its reference), the
-densification statistics (``stealth_ns/densification.py``; its torch code is their reference), the
+module holds the training loss's SSIM (``stealth_ns/images/ssim.py``; pytorch_msssim is its reference), the
+densification statistics (``stealth_ns/method/densification.py``; its torch code is their reference), the
 background composite (``composite.py``), camera visibility counts, the injection's ray search
 (``stealth_ns/attack/ray_search.py``; its torch code is the reference) and the attack's view noise
 (``stealth_ns/attack/normal_draw.py``; its numpy code is their reference).
@@ -43,9 +43,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from stealth_ns.foundation.step_timing import phase
 from stealth_ns.raster.projection import SHCoefficients
 from stealth_ns.raster.tiles import FOOTPRINT_MIN_TILES, Footprint
-from stealth_ns.step_timing import phase
 
 __all__ = [
     "EXTENSION_NAME",

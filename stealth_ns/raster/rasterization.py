@@ -23,6 +23,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
+from stealth_ns.foundation.step_timing import phase
 from stealth_ns.raster.projection import (
     SHCoefficients,
     join_sh,
@@ -32,7 +33,6 @@ from stealth_ns.raster.projection import (
 )
 from stealth_ns.raster.tiles import Footprint, isect_tiles, tile_grid
 from stealth_ns.raster.torch_backend import rasterize_to_pixels_torch
-from stealth_ns.step_timing import phase
 
 Backend = Literal["auto", "gsplat", "cpp", "torch"]
 RenderMode = Literal["RGB", "D", "ED", "RGB+D", "RGB+ED"]

@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.defend.result_file import read_defend_result
-from stealth_ns.errors import StealthNSError
-from stealth_ns.output_folder import check_writable
+from stealth_ns.defence_eval.result_file import read_defend_result
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.output_folder import check_writable
 from stealth_ns.runs.paths import run_file, same_run
 
 

@@ -6,13 +6,13 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.defend.outputs import COLUMNS, best_cuts, table_rows
-from stealth_ns.json_io import atomic_path
+from stealth_ns.defence_eval.outputs import COLUMNS, best_cuts, table_rows
+from stealth_ns.foundation.json_io import atomic_path
 
 
 def report_section(result: dict[str, Any], defend_dir: Path, output: Path) -> dict[str, Any]:
     """The "Defences" section of ``report.html`` from the ``defend.json`` of a ``stealth-ns defend``
-    folder (:func:`~stealth_ns.defend.result_file.read_defend_result` checks that it is the poisoned
+    folder (:func:`~stealth_ns.defence_eval.result_file.read_defend_result` checks that it is the poisoned
     run's): its table rows, and its figures copied to ``output/defences/`` (so the report folder stands
     alone)."""
     figures = {}

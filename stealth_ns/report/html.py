@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from stealth_ns.html_page import render_page
+from stealth_ns.foundation.html_page import render_page
 
 
 def fmt(value: Any, digits: int = 2) -> str:

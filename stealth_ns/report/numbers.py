@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.attack.views import rotate_pose, scene_center, scene_up
-from stealth_ns.defend.stealth import measure_stealth
-from stealth_ns.metrics import LazyLPIPS, illusion_metrics, psnr, v_illusory
+from stealth_ns.defence_eval.stealth import measure_stealth
+from stealth_ns.images.metrics import LazyLPIPS, illusion_metrics, psnr, v_illusory
 from stealth_ns.report.success import attack_success, success_verdicts
 from stealth_ns.runs.loaded import LoadedRun, render
 from stealth_ns.runs.pair import RunPair
@@ -32,7 +32,7 @@ def _held_out_metrics(run: LoadedRun) -> dict[str, float | None]:
 def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None, stealth: bool = True) -> dict[str, Any]:
     """The report's numbers (see the module docstring); keys documented in docs/evaluation.md.
     ``stealth``: also the poisoned run's stealth under the post-hoc defences
-    (:func:`stealth_ns.defend.stealth.measure_stealth`; seconds at the demo's scale)."""
+    (:func:`stealth_ns.defence_eval.stealth.measure_stealth`; seconds at the demo's scale)."""
     lpips = lpips if lpips is not None else LazyLPIPS()
     ours, naive = {}, {}
     for v in pair.views:

@@ -21,15 +21,15 @@ from typing import Any
 
 import numpy as np
 
-from stealth_ns.defend.stealth import stealth_line
-from stealth_ns.errors import StealthNSError
-from stealth_ns.figures import figure_grid, save_plot
-from stealth_ns.image_io import save_png
-from stealth_ns.json_io import json_safe, write_json_atomic, write_text_atomic
-from stealth_ns.metrics import psnr
-from stealth_ns.output_folder import unfinished
-from stealth_ns.pipeline import rgb_float
-from stealth_ns.provenance import software_and_hardware
+from stealth_ns.defence_eval.stealth import stealth_line
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.figures import figure_grid, save_plot
+from stealth_ns.foundation.json_io import json_safe, write_json_atomic, write_text_atomic
+from stealth_ns.foundation.output_folder import unfinished
+from stealth_ns.foundation.provenance import software_and_hardware
+from stealth_ns.images.io import save_png
+from stealth_ns.images.metrics import psnr
+from stealth_ns.method.pipeline import rgb_float
 from stealth_ns.report.arguments import check_arguments
 from stealth_ns.report.html import fmt, render_html
 from stealth_ns.report.numbers import neighbour_curve, pair_metrics

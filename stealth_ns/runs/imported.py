@@ -3,7 +3,7 @@ splatfacto run, loaded into a stealth-ns model on the dataset's cameras so that 
 runs (scan, report) renders and scores it as it does our own.
 
 * **PLY** (the official 3DGS code, gsplat, OpenSplat, ``ns-export gaussian-splat``): read by
-  :mod:`stealth_ns.gaussian_ply`, moved into nerfstudio's frame from the frame it was trained in
+  :mod:`stealth_ns.gaussians.ply`, moved into nerfstudio's frame from the frame it was trained in
   (:mod:`stealth_ns.datasets.frames`; ``auto`` tries each and keeps the one whose renders match the
   training images best), loaded into a ``stealth-splat-lite`` pipeline set up on ``--data``.
 * **nerfstudio run** (``config.yml``): a stealth-ns run loads as it is (:func:`load_run`); another
@@ -24,20 +24,20 @@ import numpy as np
 import torch
 
 from stealth_ns.attack.config import AttackConfig
-from stealth_ns.checkpoints import find_checkpoint, read_checkpoint
 from stealth_ns.datasets.frames import FRAMES, frame_transforms
 from stealth_ns.datasets.source import SceneSource, inspect_folder
 from stealth_ns.defences.scores import frustum_depth_ratios
 from stealth_ns.defences.signals import camera_matrices
-from stealth_ns.errors import StealthNSError
-from stealth_ns.gaussian_ply import GaussianCloud, read_gaussian_ply
-from stealth_ns.gaussian_transform import transform_cloud
-from stealth_ns.metrics import psnr
-from stealth_ns.model import StealthSplatModel
-from stealth_ns.model_cloud import LOADED_STEP, cloud_of_model, cloud_of_params, load_cloud
-from stealth_ns.pipeline import rgb_float
-from stealth_ns.poisoning.dataset_copy import SourceDataset
-from stealth_ns.render_view import render_camera
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.gaussians.ply import GaussianCloud, read_gaussian_ply
+from stealth_ns.gaussians.transform import transform_cloud
+from stealth_ns.images.metrics import psnr
+from stealth_ns.method.checkpoints import find_checkpoint, read_checkpoint
+from stealth_ns.method.model import StealthSplatModel
+from stealth_ns.method.model_cloud import LOADED_STEP, cloud_of_model, cloud_of_params, load_cloud
+from stealth_ns.method.pipeline import rgb_float
+from stealth_ns.method.render_view import render_camera
+from stealth_ns.poisoned_datasets.dataset_copy import SourceDataset
 from stealth_ns.runs.loaded import LoadedRun, load_run
 from stealth_ns.runs.paths import run_file
 
@@ -79,7 +79,7 @@ def load_model(model: Path, data: Path | None = None, frame: str = "auto") -> Im
     config_path = run_file(model)
     if not config_path.is_file():
         raise StealthNSError(f"{model} is neither a PLY file nor a run (no config.yml)")
-    from stealth_ns.safe_config import load_config
+    from stealth_ns.method.safe_config import load_config
 
     config = load_config(config_path)
     if frame not in ("auto", "nerfstudio"):
@@ -101,7 +101,7 @@ def _check_same_data(run: LoadedRun, data: Path | None) -> None:
 def host_config(scene: SceneSource, sh_degree: int = 3) -> Any:
     """The ``TrainerConfig`` of :data:`HOST_METHOD` on ``scene`` (attack off), as ns-train would make it,
     with SH up to ``sh_degree`` (at least 3, splatfacto's)."""
-    from stealth_ns.poisoning.setup import trainer_config
+    from stealth_ns.poisoned_datasets.setup import trainer_config
 
     config = trainer_config(SourceDataset(scene), AttackConfig(enabled=False), HOST_METHOD)
     config.pipeline.model.sh_degree = max(3, sh_degree)
@@ -112,7 +112,7 @@ def host_run(config: Any, label: Path, checkpoint: Path | None = None) -> Loaded
     """Set up ``config``'s pipeline for evaluation (held-out split loaded, training images cached) as
     a :class:`LoadedRun` named ``label`` (``checkpoint``: the one its Gaussians come from, if any); its
     model's rows are to be replaced."""
-    from stealth_ns.poisoning.setup import setup_pipeline
+    from stealth_ns.poisoned_datasets.setup import setup_pipeline
 
     pipeline = setup_pipeline(config, test_mode="test")
     pipeline.eval()

@@ -2,7 +2,7 @@
 
 Every command that reads trained runs (report, defend, bench metrics) loads them through
 :func:`load_run`: the config is read with a YAML loader that executes nothing
-(:mod:`stealth_ns.safe_config`), the checkpoint is looked up next to it, and the usual mistakes give
+(:mod:`stealth_ns.method.safe_config`), the checkpoint is looked up next to it, and the usual mistakes give
 one-line errors.
 """
 
@@ -16,10 +16,10 @@ import numpy as np
 import torch
 
 from stealth_ns.attack.record import AttackRecord
-from stealth_ns.checkpoints import checkpoint_steps
-from stealth_ns.errors import StealthNSError, StealthNSExit
-from stealth_ns.fingerprint import dataset_fingerprint, recorded_fingerprint
-from stealth_ns.render_view import render_camera
+from stealth_ns.foundation.errors import StealthNSError, StealthNSExit
+from stealth_ns.foundation.fingerprint import dataset_fingerprint, recorded_fingerprint
+from stealth_ns.method.checkpoints import checkpoint_steps
+from stealth_ns.method.render_view import render_camera
 from stealth_ns.runs.paths import run_file
 
 
@@ -49,8 +49,8 @@ class LoadedRun:
         return Path(dm.data or dm.dataparser.data)
 
     def fingerprints(self) -> dict[str, dict[str, Any]]:
-        """``{"train": ..., "held-out": ...}`` (:mod:`stealth_ns.fingerprint`): the training split's as
-        recorded when the run was trained (recomputed for runs that lack the record), the held-out
+        """``{"train": ..., "held-out": ...}`` (:mod:`stealth_ns.foundation.fingerprint`): the training
+        split's as recorded when the run was trained (recomputed for runs that lack the record), the held-out
         split's from the dataset as loaded."""
         dm = self.pipeline.datamanager
         train = recorded_fingerprint(self.config_path.parent)
@@ -62,11 +62,11 @@ class LoadedRun:
 def load_run(config_path: Path) -> LoadedRun:
     """``eval_setup`` for a run folder's ``config.yml``, with one-line errors for the usual mistakes.
 
-    The config is read with :func:`stealth_ns.safe_config.load_config` (a YAML loader that executes
+    The config is read with :func:`stealth_ns.method.safe_config.load_config` (a YAML loader that executes
     nothing). The checkpoint is looked up next to the config file, so a run folder that was moved
     (or a relative ``--output-dir``) still loads.
     """
-    from stealth_ns.safe_config import safe_eval_setup
+    from stealth_ns.method.safe_config import safe_eval_setup
 
     config_path = run_file(config_path)
     if not config_path.is_file():
@@ -104,7 +104,7 @@ def load_run(config_path: Path) -> LoadedRun:
 def attack_record(run: LoadedRun, given: Path) -> AttackRecord:
     """The attack record of an attacked run, or of the poisoned dataset a plain run (a victim) trained on
     (``stealth-ns poison-dataset`` / ``ipa-poison``); ``given``: the run's path as the user gave it."""
-    from stealth_ns.poisoning.dataset_copy import RECORD_DIR, is_poisoned_copy
+    from stealth_ns.poisoned_datasets.dataset_copy import RECORD_DIR, is_poisoned_copy
 
     attack_dir = run.config_path.parent / "attack"
     if not run.attack_enabled and is_poisoned_copy(run.data):

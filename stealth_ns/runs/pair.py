@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from stealth_ns.attack.record import AttackRecord, PoisonView
-from stealth_ns.errors import StealthNSError
-from stealth_ns.fingerprint import fingerprint_differences, same_points
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.fingerprint import fingerprint_differences, same_points
 from stealth_ns.runs.imported import load_model
 from stealth_ns.runs.loaded import LoadedRun, attack_record, load_run
 
@@ -40,9 +40,9 @@ class RunPair:
 
     def check_distinct(self, poisoned: Path, clean: Path) -> None:
         """StealthNSError (one line) when both are one model: the same Gaussians
-        (:func:`~stealth_ns.fingerprint.same_points`), as a copy of the clean run or a PLY exported from
-        it given as the poisoned one has; the comparison would measure nothing (a V-test drop of 0 dB).
-        ``poisoned``, ``clean``: the runs as the user gave them."""
+        (:func:`~stealth_ns.foundation.fingerprint.same_points`), as a copy of the clean run or a PLY
+        exported from it given as the poisoned one has; the comparison would measure nothing (a V-test drop
+        of 0 dB). ``poisoned``, ``clean``: the runs as the user gave them."""
         ours, theirs = (run.model.means.detach().cpu().numpy() for run in (self.poisoned, self.clean))
         if same_points(ours, theirs):
             raise StealthNSError(

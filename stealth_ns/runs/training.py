@@ -31,8 +31,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 from stealth_ns.attack.normal_draw import NOISE_GENERATOR
-from stealth_ns.errors import StealthNSError
-from stealth_ns.json_io import write_json_atomic
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.json_io import write_json_atomic
 
 #: Written into the run folder after a successful ``ns-train``; its presence (with the final
 #: checkpoint) is what "finished" means.

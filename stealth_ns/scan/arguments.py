@@ -1,15 +1,20 @@
 """``stealth-ns scan``'s inputs checked before anything slow: before torch and nerfstudio load (the
 command calls :func:`check_arguments` first) and again by :func:`~stealth_ns.scan.command.run_scan`;
 and the files it writes into ``--output``, under the rules of
-:func:`~stealth_ns.output_folder.claim_output` (never through a link, never over an input or a file
+:func:`~stealth_ns.foundation.output_folder.claim_output` (never through a link, never over an input or a file
 it did not write, recorded in :data:`RECORD`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from stealth_ns.errors import StealthNSError
-from stealth_ns.output_folder import check_no_links, check_output_plan, check_outside, check_writable
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.output_folder import (
+    check_no_links,
+    check_output_plan,
+    check_outside,
+    check_writable,
+)
 from stealth_ns.runs.paths import run_file
 from stealth_ns.scan.config import ScanConfig
 
@@ -19,7 +24,7 @@ CLEANED_PLY = "cleaned.ply"
 #: The cleaned nerfstudio run (a run input only), a folder the scan owns whole.
 CLEANED_RUN = "cleaned"
 IMAGES_DIR = "images"
-#: The scan's record of the files it wrote into --output (:mod:`stealth_ns.file_manifest`).
+#: The scan's record of the files it wrote into --output (:mod:`stealth_ns.foundation.file_manifest`).
 RECORD = ".stealth-ns-scan.json"
 WRITTEN_BY = "stealth-ns scan"
 

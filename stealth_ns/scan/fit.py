@@ -12,7 +12,7 @@ Below ``ScanConfig.render_match_floor`` dB above it, in every frame tried, the s
 
 from __future__ import annotations
 
-from stealth_ns.errors import StealthNSError
+from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.runs.imported import ImportedModel, frame_match
 
 

@@ -9,7 +9,7 @@
   input), and for a nerfstudio run also ``cleaned/`` (a nerfstudio run: ``ns-eval``, ``ns-viewer``);
 * ``.stealth-ns-scan.json``: the record of every file written, with its hash. A later scan into the
   same folder replaces those files (unchanged ones only) and refuses to write over any other, through
-  a symbolic link, or over its own input (:func:`~stealth_ns.output_folder.claim_output`).
+  a symbolic link, or over its own input (:func:`~stealth_ns.foundation.output_folder.claim_output`).
 """
 
 from __future__ import annotations
@@ -24,13 +24,13 @@ import torch
 
 from stealth_ns.defences import detection
 from stealth_ns.defences.pruned_run import write_pruned_run
-from stealth_ns.errors import StealthNSError
-from stealth_ns.gaussian_ply import write_gaussian_ply
-from stealth_ns.html_page import render_page
-from stealth_ns.image_io import save_png
-from stealth_ns.json_io import atomic_path, json_safe, write_json_atomic, write_text_atomic
-from stealth_ns.output_folder import claim_output, record_output, remove_tree, unfinished
-from stealth_ns.provenance import software_and_hardware
+from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.foundation.html_page import render_page
+from stealth_ns.foundation.json_io import atomic_path, json_safe, write_json_atomic, write_text_atomic
+from stealth_ns.foundation.output_folder import claim_output, record_output, remove_tree, unfinished
+from stealth_ns.foundation.provenance import software_and_hardware
+from stealth_ns.gaussians.ply import write_gaussian_ply
+from stealth_ns.images.io import save_png
 from stealth_ns.scan.arguments import (
     CLEANED_PLY,
     CLEANED_RUN,

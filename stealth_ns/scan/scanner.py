@@ -22,9 +22,9 @@ import numpy as np
 import torch
 
 from stealth_ns.attack.injection import median_scene_depth
-from stealth_ns.datamanager import dataset_image_names
 from stealth_ns.defences.posthoc import DefenceInputs, Scored, final_learning_rates, score
-from stealth_ns.render_view import render_camera
+from stealth_ns.method.datamanager import dataset_image_names
+from stealth_ns.method.render_view import render_camera
 from stealth_ns.runs.imported import ImportedModel
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.fit import check_fit

@@ -1,6 +1,6 @@
 // Densification statistics of one training step (gsplat 1.4.0 DefaultStrategy._update_state, unpacked).
 //
-// The readable reference with the same contract is stealth_ns/densification.py's
+// The readable reference with the same contract is stealth_ns/method/densification.py's
 // `accumulate_statistics` (masked torch operations over the [C, N] grid), itself checked bitwise against
 // gsplat's. One pass over the Gaussians replaces its dozen full-size temporaries (a clone of the
 // gradients, two scalings, the norm, a `where` per camera, ...).

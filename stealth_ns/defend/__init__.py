@@ -1,7 +1,0 @@
-"""``stealth-ns defend``: can the poison be found, and what does removing it cost?
-
-:mod:`~stealth_ns.defend.evaluate` (the run under defence, rendering after pruning, the defeat rule),
-:mod:`~stealth_ns.defend.command` (every defence, defend.json), :mod:`~stealth_ns.defend.outputs`
-(defend.md and the figures), :mod:`~stealth_ns.defend.input_filter_retrain` (the input-filter
-defence's retraining). The defences themselves are :mod:`stealth_ns.defences`. docs/defences.md.
-"""
