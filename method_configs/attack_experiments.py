@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 from typing import Literal
 
 from stealth_ns.attack.noise_schedule import NoiseDecay
+from stealth_ns.attack.options import AttackSettings
 
 #: Generated scenes (presets of ``stealth_ns.scene_generator``) the experiments run on.
 PRESETS: tuple[str, ...] = ("orbit", "forward", "facing")
@@ -78,19 +79,17 @@ Metric = Literal["v_illusory", "v_test"]
 #: The attacks a table row shows (``bench attack --attacks``): in the training loop, dataset attacks.
 ATTACKS: tuple[str, ...] = ("in-loop", "data-only", "ipa")
 
-ATTACK = "--pipeline.attack."
-
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One training run of a scene: its name (the run folder) and its ns-train options."""
+    """One training run of a scene: its name (the run folder) and its attack settings."""
 
     scene: str
     """A scene: a preset or a dataset folder's name (``--scenes NAME=PATH``)."""
     name: str
     """Run name, unique per scene: the run folder's name."""
-    args: tuple[str, ...] = ()
-    """ns-train options of the attack (``--pipeline.attack.*``), without the view selection."""
+    attack: AttackSettings = AttackSettings()
+    """The attack's settings (ns-train's ``--pipeline.attack.*``), without the view selection."""
     view: ViewChoice = "median-index"
     """The poisoned view (the base view of a multi-view attack)."""
     clean: bool = False
@@ -98,10 +97,11 @@ class RunSpec:
     label: str = ""
     """A short description for listings."""
     poisoning: Literal["", "data-only", "ipa"] = ""
-    """A dataset attack: the run is a plain victim (``args`` turn the attack off) trained on a poisoned
-    copy of the scene made by ``stealth-ns poison-dataset`` (data-only) or ``ipa-poison`` (IPA-Splat)."""
-    poison_args: tuple[str, ...] = ()
-    """More options of that command (the view comes from :attr:`view`)."""
+    """A dataset attack: the run is a plain victim (:attr:`attack` turns the attack off) trained on a
+    poisoned copy of the scene made by ``stealth-ns poison-dataset`` (data-only) or ``ipa-poison``
+    (IPA-Splat)."""
+    poison_attack: AttackSettings = AttackSettings()
+    """More attack settings of that command (the view comes from :attr:`view`)."""
 
     @property
     def key(self) -> str:
@@ -109,7 +109,7 @@ class RunSpec:
         return f"{self.scene}/{self.name}"
 
 
-def attack_args(
+def attack_settings(
     gt_replacement: bool = True,
     density_guided: bool = True,
     view_noise: bool = True,
@@ -117,30 +117,31 @@ def attack_args(
     noise_sigma0: float = 100.0,
     noise_decay: NoiseDecay = "linear",
     multi_view: int = 1,
-) -> tuple[str, ...]:
-    """The ns-train options of an attack run, every setting the tables vary spelled out.
+) -> AttackSettings:
+    """The attack settings of an attack run, every setting the tables vary given (in this order).
 
     Defaults are the paper's method: all three components, h = 7.5, sigma0 = 100, linear decay.
     """
-    return (
-        f"{ATTACK}enabled", "True",
-        f"{ATTACK}gt-replacement", str(gt_replacement),
-        f"{ATTACK}density-guided", str(density_guided),
-        f"{ATTACK}view-noise", str(view_noise),
-        f"{ATTACK}bandwidth", f"{bandwidth:g}",
-        f"{ATTACK}noise-sigma0", f"{noise_sigma0:g}",
-        f"{ATTACK}noise-decay", noise_decay,
-        f"{ATTACK}multi-view", str(multi_view),
-    )  # fmt: skip
+    return AttackSettings.of(
+        enabled=True,
+        gt_replacement=gt_replacement,
+        density_guided=density_guided,
+        view_noise=view_noise,
+        bandwidth=bandwidth,
+        noise_sigma0=noise_sigma0,
+        noise_decay=noise_decay,
+        multi_view=multi_view,
+    )
 
 
-CLEAN_ARGS: tuple[str, ...] = (f"{ATTACK}enabled", "False")
+#: The attack settings of a clean run, and of a dataset attack's plain victim: the attack off.
+CLEAN: AttackSettings = AttackSettings.of(enabled=False)
 DATA_ONLY_LABEL = "data-only StealthAttack (poisoned dataset: I_ILL + poison seed points; plain victim)"
 IPA_LABEL = "IPA-Splat (poisoned dataset; plain victim)"
 
 BANDWIDTHS: tuple[float, ...] = (0.1, 2.5, 5.0, 7.5, 10.0)
 NOISE_SIGMA0S: tuple[float, ...] = (30.0, 100.0)
-#: Table 5's decay rows: (--pipeline.attack.noise-decay value, the paper's label); the schedule's
+#: Table 5's decay rows: (the attack's noise_decay, the paper's label); the schedule's
 #: ``constant`` (an ablation outside the paper's table) is not one of them.
 NOISE_DECAY_ROWS: tuple[tuple[NoiseDecay, str], ...] = (
     ("linear", "Linear"),
@@ -161,33 +162,33 @@ def _noise_run(sigma0: float, decay: str) -> str:
 def _uniform_runs(scene: str) -> list[RunSpec]:
     """A uniform capture (orbit): the median-indexed view, every ablation of Tables 1, 3-6."""
     runs: list[RunSpec] = [
-        RunSpec(scene, "clean", CLEAN_ARGS, clean=True, label="clean (no attack)"),
-        RunSpec(scene, "full", attack_args(), label="all three components (the paper's method)"),
-        RunSpec(scene, "gt-only", attack_args(density_guided=False, view_noise=False), label="GT only"),
-        RunSpec(scene, "gt-density", attack_args(view_noise=False), label="GT + density-guided"),
-        RunSpec(scene, "gt-noise", attack_args(density_guided=False), label="GT + view noise"),
+        RunSpec(scene, "clean", CLEAN, clean=True, label="clean (no attack)"),
+        RunSpec(scene, "full", attack_settings(), label="all three components (the paper's method)"),
+        RunSpec(scene, "gt-only", attack_settings(density_guided=False, view_noise=False), label="GT only"),
+        RunSpec(scene, "gt-density", attack_settings(view_noise=False), label="GT + density-guided"),
+        RunSpec(scene, "gt-noise", attack_settings(density_guided=False), label="GT + view noise"),
     ]
     runs += [
-        RunSpec(scene, f"views-{k}", attack_args(multi_view=k), label=f"{k} poisoned views")
+        RunSpec(scene, f"views-{k}", attack_settings(multi_view=k), label=f"{k} poisoned views")
         for k in MULTI_VIEWS
     ]
     runs += [
-        RunSpec(scene, "data-only", CLEAN_ARGS, poisoning="data-only", label=DATA_ONLY_LABEL),
-        RunSpec(scene, "ipa", CLEAN_ARGS, poisoning="ipa", label=IPA_LABEL),
+        RunSpec(scene, "data-only", CLEAN, poisoning="data-only", label=DATA_ONLY_LABEL),
+        RunSpec(scene, "ipa", CLEAN, poisoning="ipa", label=IPA_LABEL),
     ]
     runs += [
         RunSpec(
             scene,
             f"ipa-views-{k}",
-            CLEAN_ARGS,
+            CLEAN,
             poisoning="ipa",
-            poison_args=("--multi-view", str(k)),
+            poison_attack=AttackSettings.of(multi_view=k),
             label=f"{IPA_LABEL}, {k} backdoor views",
         )
         for k in MULTI_VIEWS
     ]
     runs += [
-        RunSpec(scene, _bandwidth_run(h), attack_args(bandwidth=h), label=f"bandwidth h={h:g}")
+        RunSpec(scene, _bandwidth_run(h), attack_settings(bandwidth=h), label=f"bandwidth h={h:g}")
         for h in BANDWIDTHS
         if _bandwidth_run(h) != "full"
     ]
@@ -195,7 +196,7 @@ def _uniform_runs(scene: str) -> list[RunSpec]:
         RunSpec(
             scene,
             _noise_run(s, d),
-            attack_args(noise_sigma0=s, noise_decay=d),
+            attack_settings(noise_sigma0=s, noise_decay=d),
             label=f"noise sigma0={s:g}, {d} decay",
         )
         for s in NOISE_SIGMA0S
@@ -207,19 +208,17 @@ def _uniform_runs(scene: str) -> list[RunSpec]:
 
 def _kde_runs(scene: str) -> list[RunSpec]:
     """A KDE scene (free trajectory, forward-facing, real capture): Easy / Median / Hard views."""
-    runs = [RunSpec(scene, "clean", CLEAN_ARGS, clean=True, label="clean (no attack)")]
+    runs = [RunSpec(scene, "clean", CLEAN, clean=True, label="clean (no attack)")]
     runs += [
-        RunSpec(scene, level, attack_args(), view=level, label=f"{level.capitalize()} view (KDE)")
+        RunSpec(scene, level, attack_settings(), view=level, label=f"{level.capitalize()} view (KDE)")
         for level in KDE_LEVELS
     ]
     runs += [
-        RunSpec(scene, f"ipa-{level}", CLEAN_ARGS, view=level, poisoning="ipa", label=f"{IPA_LABEL}, {level}")
+        RunSpec(scene, f"ipa-{level}", CLEAN, view=level, poisoning="ipa", label=f"{IPA_LABEL}, {level}")
         for level in KDE_LEVELS
     ]
     runs.append(
-        RunSpec(
-            scene, "data-only-median", CLEAN_ARGS, view="median", poisoning="data-only", label=DATA_ONLY_LABEL
-        )
+        RunSpec(scene, "data-only-median", CLEAN, view="median", poisoning="data-only", label=DATA_ONLY_LABEL)
     )
     return runs
 
@@ -227,20 +226,25 @@ def _kde_runs(scene: str) -> list[RunSpec]:
 _KIND_RUNS = {"uniform": _uniform_runs, "kde": _kde_runs}
 
 #: Table 7's rows beyond the default attack: the stealth-aware variants, then the attack's other
-#: knobs one at a time (``docs/stealth.md``): (run name, options added to :func:`attack_args`, label).
-#: A uniform scene shows Tables 3 and 5's runs for the settings they share (:data:`STEALTH_SHARED`).
-STEALTH_SETTINGS: tuple[tuple[str, tuple[str, ...], str], ...] = (
-    ("st-support-3", (f"{ATTACK}support-views", "3"), "support views 3 (stealth-aware)"),
-    ("st-support-4", (f"{ATTACK}support-views", "4"), "support views 4 (stealth-aware)"),
-    ("st-support-5", (f"{ATTACK}support-views", "5"), "support views 5 (stealth-aware)"),
-    ("st-support-6", (f"{ATTACK}support-views", "6"), "support views 6 (stealth-aware)"),
-    ("st-surface", (f"{ATTACK}placement", "surface"), "placement surface (stealth-aware)"),
-    ("st-tmin-0.1", (f"{ATTACK}t-min-fraction", "0.1"), "t-min fraction 0.1 (default 0.01)"),
-    ("st-scale-2", (f"{ATTACK}poison-scale", "2"), "poison scale 2 px (default 0.5)"),
-    ("st-opacity-0.5", (f"{ATTACK}poison-opacity", "0.5"), "poison opacity 0.5 (default 0.1)"),
-    ("st-inject-warmup", (f"{ATTACK}injection-step", "None"), "injection at the end of warm-up (default 0)"),
-    ("st-sigma-30", (f"{ATTACK}noise-sigma0", "30"), "noise sigma0 30 (default 100)"),
-    ("st-views-2", (f"{ATTACK}multi-view", "2"), "2 poisoned views (default 1)"),
+#: knobs one at a time (``docs/stealth.md``): (run name, settings given after :func:`attack_settings`'s,
+#: label). A uniform scene shows Tables 3 and 5's runs for the settings they share
+#: (:data:`STEALTH_SHARED`).
+STEALTH_SETTINGS: tuple[tuple[str, AttackSettings, str], ...] = (
+    ("st-support-3", AttackSettings.of(support_views=3), "support views 3 (stealth-aware)"),
+    ("st-support-4", AttackSettings.of(support_views=4), "support views 4 (stealth-aware)"),
+    ("st-support-5", AttackSettings.of(support_views=5), "support views 5 (stealth-aware)"),
+    ("st-support-6", AttackSettings.of(support_views=6), "support views 6 (stealth-aware)"),
+    ("st-surface", AttackSettings.of(placement="surface"), "placement surface (stealth-aware)"),
+    ("st-tmin-0.1", AttackSettings.of(t_min_fraction=0.1), "t-min fraction 0.1 (default 0.01)"),
+    ("st-scale-2", AttackSettings.of(poison_scale=2.0), "poison scale 2 px (default 0.5)"),
+    ("st-opacity-0.5", AttackSettings.of(poison_opacity=0.5), "poison opacity 0.5 (default 0.1)"),
+    (
+        "st-inject-warmup",
+        AttackSettings.of(injection_step=None),
+        "injection at the end of warm-up (default 0)",
+    ),
+    ("st-sigma-30", AttackSettings.of(noise_sigma0=30.0), "noise sigma0 30 (default 100)"),
+    ("st-views-2", AttackSettings.of(multi_view=2), "2 poisoned views (default 1)"),
 )
 #: Table 7's settings, the stealth-aware variants; Table 8 has the others.
 STEALTH_VARIANTS: tuple[str, ...] = (
@@ -258,7 +262,7 @@ def _stealth_runs(scene: str) -> list[RunSpec]:
     uniform = scene_kind(scene) == "uniform"
     view: ViewChoice = "median-index" if uniform else "median"
     return [
-        RunSpec(scene, name, attack_args() + extra, view=view, label=label)
+        RunSpec(scene, name, attack_settings() + extra, view=view, label=label)
         for name, extra, label in STEALTH_SETTINGS
         if not (uniform and name in STEALTH_SHARED)
     ]

@@ -6,9 +6,7 @@ the environment refused) as one line (``stealth-ns: error: ...``), exit status 2
 
 from __future__ import annotations
 
-import contextlib
 import sys
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
@@ -20,7 +18,7 @@ from stealth_ns.defences.config import DefendConfig
 from stealth_ns.difficulty.rank import RankViews
 from stealth_ns.foundation.errors import StealthNSError, environment_error
 from stealth_ns.foundation.output_folder import check_file_writable
-from stealth_ns.poisoned_datasets.config import IPAConfig
+from stealth_ns.poisoned_datasets.config import IPAConfig, data_only_attack_defaults
 from stealth_ns.scan.config import ScanConfig
 
 
@@ -404,21 +402,6 @@ class Scan:
         print("\n".join(summary_lines(doc, self.output)))
 
 
-def _default_data_only_attack() -> AttackConfig:
-    # a static dataset: no noise unless asked for, and then constant (the decaying schedule cannot apply)
-    return AttackConfig(view_noise=False, noise_decay="constant")
-
-
-@contextlib.contextmanager
-def _attack_flags_as_given() -> Iterator[None]:
-    """The attack's errors name its options as ns-train spells them (``--pipeline.attack.t-min``); the
-    dataset commands take them without the prefix (``--t-min``): say them so."""
-    try:
-        yield
-    except StealthNSError as err:
-        raise StealthNSError(str(err).replace("--pipeline.attack.", "--")) from None
-
-
 @dataclass
 class PoisonDataset:
     """Write a poisoned copy of a dataset (the data-only StealthAttack) that any 3DGS trainer can consume."""
@@ -432,25 +415,25 @@ class PoisonDataset:
     overwrite: bool = False
     """Replace OUTPUT when it is an earlier poisoned copy (never anything else)."""
     attack: Annotated[AttackConfig, tyro.conf.OmitArgPrefixes] = field(
-        default_factory=_default_data_only_attack
+        default_factory=data_only_attack_defaults
     )
 
     def main(self) -> None:
+        from stealth_ns.attack.options import STEALTH_NS
         from stealth_ns.attack.validation import validate_attack_config
 
         if not self.attack.enabled:
             raise StealthNSError(
                 "--enabled False: poison-dataset always writes the attack (copy the folder instead)"
             )
-        with _attack_flags_as_given():
-            validate_attack_config(self.attack)  # at once, not after torch and nerfstudio load (~10 s)
+        # at once, not after torch and nerfstudio load (~10 s)
+        validate_attack_config(self.attack, spelling=STEALTH_NS)
         from stealth_ns.poisoned_datasets.data_only import poison_dataset
 
         # --seed (the attack's) also seeds the set-up, as ns-train's --machine.seed would
-        with _attack_flags_as_given():
-            summary = poison_dataset(
-                self.data, self.output, self.attack, self.method, self.attack.seed, self.overwrite
-            )
+        summary = poison_dataset(
+            self.data, self.output, self.attack, self.method, self.attack.seed, self.overwrite
+        )
         print(summary)
 
 
@@ -485,6 +468,7 @@ class IpaPoison:
     ipa: Annotated[IPAConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=IPAConfig)
 
     def main(self) -> None:
+        from stealth_ns.attack.options import STEALTH_NS
         from stealth_ns.attack.validation import validate_attack_config
 
         attack = AttackConfig(
@@ -499,24 +483,15 @@ class IpaPoison:
             view_noise=False,
             seed=self.seed,
         )
-        with _attack_flags_as_given():
-            validate_attack_config(attack)
+        validate_attack_config(attack, spelling=STEALTH_NS)
         if self.iterations is not None and self.iterations < 1:
             raise StealthNSError(f"--iterations must be a positive integer, got {self.iterations}")
         self.ipa.validate()  # these at once, not after torch and nerfstudio load (~10 s)
         from stealth_ns.poisoned_datasets.ipa_splat import ipa_poison
 
-        with _attack_flags_as_given():
-            summary = ipa_poison(
-                self.data,
-                self.output,
-                attack,
-                self.ipa,
-                self.method,
-                self.seed,
-                self.iterations,
-                self.overwrite,
-            )
+        summary = ipa_poison(
+            self.data, self.output, attack, self.ipa, self.method, self.seed, self.iterations, self.overwrite
+        )
         print(summary)
 
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from stealth_ns.attack.options import AttackSettings
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.runs.training import TrainRecord, TrainSpec, train, train_progress
 
@@ -94,11 +95,20 @@ def run_demo(output: Path, iterations: int | None = None, seed: int = 0) -> Demo
         print(make_scene(preset=DEMO_PRESET, output=scene, seed=seed, overwrite=True))
         seconds["scene"] = time.perf_counter() - t0
     threads = max(1, (os.cpu_count() or 2) // 2)
+    # the clean run turns the attack off; the poisoned one trains the default attack
+    attacks = {"clean": AttackSettings.of(enabled=False), "poisoned": AttackSettings()}
     specs = {
         name: TrainSpec(
-            scene, name, output / "runs", "demo", extra, iterations=iterations, seed=seed, threads=threads
+            scene,
+            name,
+            output / "runs",
+            "demo",
+            attack=attack,
+            iterations=iterations,
+            seed=seed,
+            threads=threads,
         )
-        for name, extra in (("clean", ("--pipeline.attack.enabled", "False")), ("poisoned", ()))
+        for name, attack in attacks.items()
     }
     records = train_side_by_side(specs, output)
     peak = {}

@@ -4,7 +4,8 @@ Modules (no nerfstudio imports; numpy / scipy / scikit-image / torch only; ``con
 ``noise_schedule`` load without torch; ``tests/attack/test_attack_options.py`` checks both):
 
 * :mod:`stealth_ns.attack.config` -- :class:`~stealth_ns.attack.config.AttackConfig`, every option
-  (``--pipeline.attack.*``), a plain dataclass; :mod:`stealth_ns.attack.validation` checks them.
+  (``--pipeline.attack.*``), a plain dataclass; :mod:`stealth_ns.attack.validation` checks them;
+  :mod:`stealth_ns.attack.options` writes typed settings as a command's options.
 * :mod:`stealth_ns.attack.density` -- voxel density grid of a point cloud and its Gaussian KDE
   (paper section 3.3, "Scene Space Analysis" and "Continuous Density Estimation").
 * :mod:`stealth_ns.attack.ray_search` -- pixel rays of the poisoned view and the minimum-density

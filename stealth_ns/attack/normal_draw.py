@@ -2,9 +2,9 @@
 
 Deviate pair ``j`` of stream ``key`` is a pure function of ``(key, j)``, so the compiled kernel
 (``csrc/noise_cpu.cpp``) draws a 1-MP image's 2.3 M deviates on every core, where ``torch.randn``'s one
-Mersenne Twister took ~8 ms of each noised training step. The numpy functions here are the readable
-reference with the same contract; every float operation is rounded as the kernel rounds it, and the
-tests compare bitwise::
+Mersenne Twister draws them on one (docs/training_step.md has the figures). The numpy functions here
+are the readable reference with the same contract; every float operation is rounded as the kernel
+rounds it, and the tests compare bitwise::
 
     h          = splitmix64(key + (j + 1) * 0x9E3779B97F4A7C15)
     u1         = ((h >> 40) + 1) / 2^24               in (0, 1]
@@ -21,8 +21,8 @@ Three implementations of one contract: the numpy reference, the compiled CPU ker
 operations as torch tensor operations (:func:`_pairs_on`), which draw the noise of an image cached on
 a CUDA device where it lives instead of sending it to the CPU and back every step. Each torch operation is
 one IEEE-rounded float32 operation (no fused multiply-add spans two of them), so all three give the
-same bits on any device. That is ~118 kernel launches per image, ~1.3 ms of CPU time on an H200 for
-0.36 ms of GPU work, so on CUDA they are captured once per image shape as a CUDA graph and replayed
+same bits on any device. That is ~118 kernel launches per image, whose launch cost exceeds the GPU
+work, so on CUDA they are captured once per image shape as a CUDA graph and replayed
 (:class:`_NoiseGraph`), with the key and sigma read from device memory.
 """
 
@@ -147,8 +147,8 @@ def _pairs_on(
     y = y + e * float(_F(-2.12194440e-4))
     y = y + -0.5 * zz
     ln_u1 = (x + y) + e * float(_F(0.693359375))
-    # torch's float32 sqrt is not correctly rounded on every device (on the CPU, torch 2.14 with AVX2:
-    # 15% of values 1 ulp off); the float64 root rounded to float32 is, as numpy's float32 sqrt
+    # torch's float32 sqrt is not correctly rounded on every device (docs/training_step.md); the
+    # float64 root rounded to float32 is, as numpy's float32 sqrt
     r = torch.sqrt(torch.clamp_min(-2.0 * ln_u1, 0.0).double()).float()
     n2 = (_srl(h, 8) & 0xFFFFFF).to(torch.int32)
     q = (n2 + (1 << 21)) >> 22

@@ -21,6 +21,7 @@ from pathlib import PurePath
 import numpy as np
 import torch
 
+from stealth_ns.attack.options import option_name
 from stealth_ns.foundation.errors import StealthNSError
 
 __all__ = [
@@ -209,7 +210,7 @@ def nearest_views(camera_to_worlds, index: int, k: int, exclude: Sequence[int] =
     candidates = np.flatnonzero(usable)
     if candidates.size < k:
         raise StealthNSError(
-            f"--pipeline.attack.support-views {k}: view {index} has only {candidates.size} other training "
+            f"{option_name('support_views')} {k}: view {index} has only {candidates.size} other training "
             "views looking the same way"
         )
     order = np.lexsort((candidates, distance[candidates]))  # by distance, then index

@@ -344,17 +344,18 @@ def _planned_run(
     iterations: int,
     seed: int,
 ) -> PlannedRun:
-    """The ns-train invocation of ``run`` (shown in ``tables``): its scene's options, the KDE view
-    (a placeholder until ranked), the attack seed, the run folder; with its status on disk."""
+    """The ns-train invocation of ``run`` (shown in ``tables``): its scene's options, its attack settings
+    with the KDE view (a placeholder until ranked) and the attack seed, the run folder; with its status
+    on disk."""
     src = src_of[run.scene]
-    extra = [*src.train_args, *run.args]
+    attack = run.attack
     view = None
     if run.view in KDE_LEVELS:
         view = views.get(run.scene, {}).get(run.view) or f"<{run.view.upper()} view of the KDE protocol>"
         if not run.poisoning:
-            extra += ["--pipeline.attack.views", view]
+            attack = attack.then(views=(view,))
     if not run.clean and not run.poisoning:
-        extra += ["--pipeline.attack.seed", str(seed)]
+        attack = attack.then(seed=int(seed))
     dataparser, dataparser_args = src.dataparser
     # a preset's folder name holds its seed and options; a folder's experiment names the training seed
     experiment = dirs[run.scene].name if src.is_preset else f"{run.scene}-seed{seed}"
@@ -363,7 +364,15 @@ def _planned_run(
     if run.poisoning:  # a plain victim on the poisoned copy of the scene
         folder = output / "poisoned" / f"{experiment}-{iterations}it" / run.name
         poison = PoisonJob(
-            run.poisoning, dirs[run.scene], folder, view, run.poison_args, method, seed, iterations, scene_id
+            run.poisoning,
+            dirs[run.scene],
+            folder,
+            view,
+            run.poison_attack,
+            method,
+            seed,
+            iterations,
+            scene_id,
         )
         data, scene_id = folder, poison.scene_id
     spec = TrainSpec(
@@ -371,7 +380,8 @@ def _planned_run(
         name=run.name,
         output_dir=output / "runs",
         experiment=f"{experiment}-{iterations}it",
-        extra=tuple(extra),
+        extra=src.train_args,
+        attack=attack,
         method=method,
         iterations=int(iterations),
         seed=int(seed),

@@ -17,9 +17,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 from stealth_ns.attack.normal_draw import NOISE_GENERATOR
+from stealth_ns.attack.options import STEALTH_NS, AttackSettings, command_options
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import write_json_atomic
-from stealth_ns.poisoned_datasets.config import IPAConfig
+from stealth_ns.poisoned_datasets.config import IPAConfig, data_only_attack_defaults
 from stealth_ns.poisoned_datasets.dataset_copy import RECORD_DIR, RECORD_FILE
 from stealth_ns.runs import training as runs
 from stealth_ns.runs.training import bin_path
@@ -40,8 +41,8 @@ class PoisonJob:
     """The poisoned copy."""
     view: str | None
     """The poisoned (backdoor) view; None: the attack's default, the median-indexed frame."""
-    args: tuple[str, ...]
-    """More options of the poisoning command (``--multi-view 2``)."""
+    attack: AttackSettings
+    """More attack settings of the poisoning command (``multi_view=2``: ``--multi-view 2``)."""
     method: str
     seed: int
     iterations: int
@@ -62,9 +63,14 @@ class PoisonJob:
         }
         if self.kind == "ipa":  # the attacker trains; data-only only sets up the model
             identity["iterations"] = self.iterations
-        if self.kind == "data-only" and "--view-noise" in runs.cli_options(self.args):
+        if self.kind == "data-only" and self.attack.config(data_only_attack_defaults()).view_noise:
             identity["view_noise"] = NOISE_GENERATOR  # static noise: a copy with other draws is made again
         return identity
+
+    @property
+    def args(self) -> tuple[str, ...]:
+        """:attr:`attack` as the poisoning command's options (``--multi-view 2``)."""
+        return command_options(self.attack, STEALTH_NS)
 
     @property
     def scene_id(self) -> str:
@@ -104,8 +110,7 @@ class PoisonJob:
         ]
         if self.kind == "ipa":
             cmd += ["--iterations", str(self.iterations)]
-            every = IPAConfig.every
-            if self.iterations <= every and "--every" not in runs.cli_options(self.args):
+            if self.iterations <= IPAConfig.every:
                 # a short bench (tests, --iterations <= 200): one attack epoch half-way, not none
                 cmd += ["--every", str(max(1, self.iterations // 2))]
         if self.view is not None:

@@ -64,7 +64,7 @@ def run_entry(p: PlannedRun) -> dict[str, Any]:
         "tables": list(p.tables),
         "view_choice": p.run.view,
         "kde_view": p.view,
-        "args": list(p.spec.extra),
+        "args": list(p.spec.options),
         "run_dir": str(p.spec.run_dir),
         "config": str(p.spec.config_path),
         "command": p.spec.command(),

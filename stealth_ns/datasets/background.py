@@ -2,8 +2,9 @@
 
 Object captures exported as RGB (a COLMAP or nerfstudio-data dataset, not Blender's RGBA) often carry the
 object on pure white or black. Trained under splatfacto's default random background, the model must
-paint that colour with Gaussians: on an object capture the held-out PSNR was 19.8 dB, against 31.8 dB
-with ``--pipeline.model.background-color white`` (issue 32). ns-train says so when it starts.
+paint that colour with Gaussians, and the held-out PSNR suffers (measured: docs/cpu_rasterizer.md,
+"Object captures"); ``--pipeline.model.background-color`` set to that colour avoids it. ns-train says
+so when it starts.
 """
 
 from __future__ import annotations

@@ -2,7 +2,9 @@
 
 Split out of :mod:`stealth_ns.datasets.check` (which re-exports these names), so that every dataset
 format's check -- nerfstudio-data's ``ply_file_path``, COLMAP's ``points3D``, blender-data's
-``--ply-path`` -- measures its cloud against its cameras the same way.
+``--ply-path`` -- measures its cloud against its cameras the same way. The density-guided
+injection's own start-up check (:func:`check_injection_seed_points`: the model starts from seed
+points at all) is here too.
 """
 
 from __future__ import annotations
@@ -12,11 +14,13 @@ from typing import Any
 
 import numpy as np
 
+from stealth_ns.attack.options import option_words
+from stealth_ns.datasets.references import read_json_object
 from stealth_ns.foundation.errors import StealthNSError
 
 __all__ = [
-    "MAX_POINT_DISTANCE", "MIN_SEED_POINTS", "camera_spread", "check_ply", "check_seed_points",
-    "ply_vertex_count", "xyz_text",
+    "MAX_POINT_DISTANCE", "MIN_SEED_POINTS", "camera_spread", "check_injection_seed_points", "check_ply",
+    "check_seed_points", "ply_vertex_count", "xyz_text",
 ]  # fmt: skip
 
 MIN_SEED_POINTS = 4
@@ -124,3 +128,52 @@ def check_ply(ply: Path, where: str, key: str, hint: str, centre: np.ndarray, sp
             raise StealthNSError(f"{where}: open3d reads {len(xyz)} of the {n} points of {ply}")
     check_seed_points(xyz, f"{where}: seed-point file {ply}", centre, spread, hint)
     return len(xyz)
+
+
+def check_injection_seed_points(points: Any, random_init: bool, transforms: Path | None, data: Any) -> None:
+    """StealthNSError unless the model starts from seed points: the density-guided placement reads the
+    density of the point cloud, and that of a random initialisation is noise.
+
+    Args:
+        points: the model's seed points ([N, 3]), None when the dataset has none.
+        random_init: ``--pipeline.model.random-init``.
+        transforms: the dataset's nerfstudio-data transforms file (None: no dataset folder given).
+        data: the dataset as ``--data`` names it, for the message.
+    """
+    if random_init:
+        why = "--pipeline.model.random-init is on"
+    elif points is None and (named := _named_seed_point_file(transforms)) is not None:
+        why = named
+    elif points is None:
+        why = (
+            "the dataset has no seed points (no ply_file_path in transforms.json, no COLMAP points, "
+            "or a Blender dataset)"
+        )
+    elif points.shape[0] == 0:
+        why = "the seed-point file is empty"
+    else:
+        return
+    raise StealthNSError(
+        f"the density-guided injection places poison by the density of the seed points, but {why}. "
+        f"Triangulate them from the known poses with `stealth-ns seed-points --data {data}` and train "
+        f"on the dataset it prints, or turn the component off with {option_words('density_guided', False)}"
+    )
+
+
+def _named_seed_point_file(path: Path | None) -> str | None:
+    """Why the seed-point file named by a nerfstudio-data transforms file ``path`` gave no points, if it
+    names one."""
+    if path is None:
+        return None
+    try:
+        ply = read_json_object(path).get("ply_file_path")
+    except StealthNSError:  # not nerfstudio-data (colmap, blender): no named file
+        return None
+    if not isinstance(ply, str):
+        return None
+    ply_path = path.parent / ply  # its existence is checked at start-up (dataset_check)
+    try:
+        n = ply_vertex_count(ply_path)
+    except StealthNSError as err:
+        return str(err)
+    return f"the seed-point file {ply_path} has no points" if n == 0 else None

@@ -17,14 +17,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from stealth_ns.attack.poison_views import training_target
 from stealth_ns.attack.record import AttackRecord
 from stealth_ns.defence_eval.rule import DEFEAT_V_ILLUSORY, DEFEAT_V_TEST_COST
 from stealth_ns.defences import detection
 from stealth_ns.defences.posthoc import final_learning_rates
 from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.images.io import cached_format, rgb_float
 from stealth_ns.images.metrics import illusion_metrics, psnr, v_illusory
 from stealth_ns.method.model import StealthSplatModel
-from stealth_ns.method.pipeline import cached_format, rgb_float, training_target
 from stealth_ns.method.render_view import render_camera
 from stealth_ns.runs.loaded import LoadedRun, attack_record, load_run
 

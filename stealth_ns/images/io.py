@@ -6,7 +6,8 @@ palettes, a stray alpha channel, a file that is no image) is handled once.
 Files are decoded with imageio's ``pillow`` plugin only: it is what nerfstudio's data loading
 uses (PIL), and imageio's automatic plugin choice would hand a file Pillow cannot identify to
 PyAV, which "reads" a text file as an empty video instead of refusing it. Importing this module
-does not import torch (tensors are recognised by duck typing).
+does not import torch (tensors are recognised by duck typing; the two helpers for nerfstudio's cached
+training images, :func:`rgb_float` and :func:`cached_format`, import it when called).
 """
 
 from __future__ import annotations
@@ -26,9 +27,11 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ImageInfo",
+    "cached_format",
     "image_info",
     "image_size",
     "read_image",
+    "rgb_float",
     "encode_png",
     "save_png",
     "split_alpha",
@@ -147,14 +150,35 @@ def to_uint8(image: np.ndarray | torch.Tensor) -> np.ndarray:
     """Any image as uint8 (``img_as_ubyte``): uint8 as is, bool as 0 / 255, other integers rescaled,
     floats clipped to [0, 1] (NaN -> 0), scaled by 255 and rounded to nearest, ties to even.
 
-    Ties to even, not up: the scene generator's images used to be rounded half up; on generated
-    scenes the only exact ties are at 127.5 (0.5), where both rules give 128, so its files did
-    not change (checked byte for byte on every preset).
+    Ties to even, not up (as ``img_as_ubyte``); on generated scenes the only exact ties are at 127.5
+    (0.5), where both rules give 128 (docs/determinism.md).
     """
     arr = _numpy(image)
     if arr.dtype.kind == "f":
         arr = np.clip(np.nan_to_num(arr.astype(np.float64)), 0.0, 1.0)
     return img_as_ubyte(arr)
+
+
+def rgb_float(image: torch.Tensor) -> torch.Tensor:
+    """[H, W, 3 or 4] uint8 or float cached image -> [H, W, 3] float32 in [0, 1], on the CPU."""
+    import torch
+
+    return torch.from_numpy(to_float32(image[..., :3]))
+
+
+def cached_format(rgb: torch.Tensor, clean: torch.Tensor, opaque: torch.Tensor | None = None) -> torch.Tensor:
+    """A float [H, W, 3] training image in the cache's dtype/channels of ``clean``: images with alpha
+    (blender) keep their alpha, made opaque where ``opaque`` ([H, W] bool) is set."""
+    import torch
+
+    if clean.dtype == torch.uint8:
+        rgb = (rgb * 255.0).round().clamp(0, 255).to(torch.uint8)
+    if clean.shape[-1] == 4:
+        a = clean[..., 3:].clone()
+        if opaque is not None:
+            a[opaque] = 255 if clean.dtype == torch.uint8 else 1.0
+        rgb = torch.cat([rgb, a], -1)
+    return rgb
 
 
 def split_alpha(image: np.ndarray | torch.Tensor) -> tuple[np.ndarray, np.ndarray | None]:

@@ -3,14 +3,13 @@
 gsplat's :class:`~gsplat.strategy.DefaultStrategy` accumulates, after every backward pass, the
 screen-space gradient norm, a visibility count and the largest screen radius of each visible
 Gaussian. It selects the visible ones with boolean masks (``torch.where``, ``grads[sel]``,
-``radii[sel]``, an indexed assignment): each is a ``nonzero`` plus a gather over all N rows,
-about 3.5 ms per step with one thread at 70k Gaussians on a CPU. :class:`DenseStatisticsStrategy`
+``radii[sel]``, an indexed assignment): each is a ``nonzero`` plus a gather over all N rows
+(timings: docs/training_step.md). :class:`DenseStatisticsStrategy`
 computes the same sums with masked dense operations over the ``[C, N]`` grid instead
 (:func:`accumulate_statistics`), camera by camera in the order ``index_add_`` adds them, so the state
 is bitwise the same (``tests/method/test_densification.py`` checks it against gsplat's). On a CPU the compiled
 ``densify_stats`` (``raster/csrc/densify_cpu.cpp``) does the same in one pass over the Gaussians,
-bitwise equal to that reference: 0.24 instead of 0.76 ms at 70k Gaussians with 2 threads (the
-benchmark's densification phase: 0.99 -> 0.27 ms per step).
+bitwise equal to that reference.
 
 Growing and pruning (gsplat's ``_grow_gs`` and ``_prune_gs``, every ``refine_every`` steps) run their
 PyTorch ops on one thread (:func:`stealth_ns.foundation.thread_invariant.one_thread`): their ``exp`` and

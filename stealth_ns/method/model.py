@@ -7,7 +7,8 @@ with three changes:
 - rendering goes through :func:`stealth_ns.raster.rasterization`, which uses gsplat's CUDA
   kernels on a CUDA device and a CPU rasterizer otherwise (``rasterizer_backend``);
 - nothing is moved to CUDA unconditionally, and the camera view matrix is computed without
-  ``torch.compile`` (which costs ~13 s on a CPU for one 4x4 inverse);
+  ``torch.compile`` (whose compile time on a CPU is out of all proportion to one 4x4 inverse;
+  docs/training_step.md);
 - LPIPS is created lazily on first use; when its AlexNet weights cannot be loaded (offline),
   the reason is logged once and LPIPS is left out of the metrics instead of crashing.
 
@@ -169,7 +170,7 @@ class StealthSplatModel(LossesAndMetrics, SplatfactoModel):
         from torchmetrics.functional.image import peak_signal_noise_ratio
 
         # torchmetrics' function rather than its module: the same value (bitwise), without the
-        # module's per-call state bookkeeping (0.17 -> 0.05 ms in every training step's metrics)
+        # module's per-call state bookkeeping in every training step's metrics (docs/training_step.md)
         self.psnr = functools.partial(peak_signal_noise_ratio, data_range=1.0)
         self.ssim = SSIM(data_range=1.0, size_average=True, channel=3)
         # Not a submodule: it must not enter checkpoints, and building it may need a download.

@@ -2,10 +2,8 @@
 
 nerfstudio writes an evaluation image every ``steps_per_eval_image`` steps (100 in splatfacto and
 stealth-splat): the ground truth beside the render. TensorBoard encodes it as a PNG through Pillow
-at zlib level 6. At 1 MP (756x2016 pixels) that took 0.41 s an image, 0.8-1.0 s of each such step
-on the generated 1008x756 ``facing`` scene, and on an H100 the evaluation-image steps were about a
-third of a whole ``stealth-splat-lite`` run (docs/training_step.md). Zlib level 1 encodes the same
-pixels several times faster into a file about 1.4 times larger.
+at zlib level 6, a large part of such a step at 1 MP. Zlib level 1 encodes the same pixels faster
+into a somewhat larger file (timings and sizes: docs/training_step.md).
 """
 
 from __future__ import annotations

@@ -1,10 +1,18 @@
-"""IPA-Splat's settings: a plain dataclass (no torch), so ``stealth-ns ipa-poison --help`` is quick."""
+"""The dataset attacks' settings without torch, so ``stealth-ns ipa-poison --help`` is quick: IPA-Splat's
+(:class:`IPAConfig`) and the data-only attack's defaults (:func:`data_only_attack_defaults`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from stealth_ns.attack.config import AttackConfig
 from stealth_ns.foundation.errors import StealthNSError
+
+
+def data_only_attack_defaults() -> AttackConfig:
+    """The attack ``stealth-ns poison-dataset`` writes unless told otherwise: a static dataset gets no
+    noise unless asked for, and then constant (the decaying schedule cannot apply)."""
+    return AttackConfig(view_noise=False, noise_decay="constant")
 
 
 @dataclass

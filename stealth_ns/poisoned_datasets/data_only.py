@@ -30,6 +30,7 @@ from typing import Any
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.injection import injection_entry
 from stealth_ns.attack.noise_schedule import noisy_image
+from stealth_ns.attack.options import STEALTH_NS, AttackSettings, command_options, spelled_as
 from stealth_ns.attack.record import AttackRecord, write_injection_files
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.fingerprint import dataset_fingerprint
@@ -72,10 +73,12 @@ def data_only_attack(attack: AttackConfig) -> AttackConfig:
 def victim_command(source: SourceDataset, output: Path, method: str = "stealth-splat-lite") -> str:
     """The ns-train command of a plain (attack-free) victim on a poisoned copy."""
     dataparser, options = source.dataparser
-    words = ["ns-train", method, "--pipeline.attack.enabled", "False", "--vis", "tensorboard", dataparser]
+    attack_off = command_options(AttackSettings.of(enabled=False))
+    words = ["ns-train", method, *attack_off, "--vis", "tensorboard", dataparser]
     return shlex.join([*words, "--data", str(output), *options])
 
 
+@spelled_as(STEALTH_NS)
 def poison_dataset(
     data: Path,
     output: Path,
@@ -84,7 +87,8 @@ def poison_dataset(
     seed: int = 0,
     overwrite: bool = False,
 ) -> str:
-    """Write the data-only poisoned copy of ``data`` into ``output``; returns a summary for the console."""
+    """Write the data-only poisoned copy of ``data`` into ``output``; returns a summary for the console.
+    Errors name the attack's options as ``stealth-ns poison-dataset`` spells them (``--t-min``)."""
     t0 = time.perf_counter()
     attack = data_only_attack(attack)
     source = open_source(data)
@@ -131,8 +135,10 @@ def _add_poison_points(
 ) -> tuple[Any, dict[int, Any]]:
     """Place the poison on the seed-initialised model and append it to the copy's seed cloud; returns
     the record's injection entry and the support views' images (``--support-views``:
-    :meth:`StealthPipeline.support_targets`)."""
-    placement = pipeline.poison_placement()
+    :func:`stealth_ns.method.injection.support_targets`)."""
+    from stealth_ns.method.injection import poison_placement, support_targets, support_view_names
+
+    placement = poison_placement(pipeline)
     if placement.means.shape[0] == 0:
         raise StealthNSError(
             "no illusion pixel has room for a poison point (t_max < t_min on every ray); lower "
@@ -143,12 +149,13 @@ def _add_poison_points(
     write_injection_files(
         copy.root / RECORD_DIR, placement.means, placement.colors, placement.grid, placement.kde
     )
-    entry = injection_entry(placement, 0, int(pipeline.model.num_points), pipeline.support_view_names())
-    return entry, pipeline.support_targets(placement)
+    entry = injection_entry(placement, 0, int(pipeline.model.num_points), support_view_names(pipeline))
+    return entry, support_targets(pipeline, placement)
 
 
 def _write_targets(pipeline: Any, copy: PoisonedCopy, support: dict[int, Any]) -> None:
-    from stealth_ns.method.pipeline import training_target
+    from stealth_ns.attack.poison_views import training_target
+    from stealth_ns.method.injection import support_training_images
 
     dm = pipeline.datamanager
     outputs = dm.train_dataparser_outputs
@@ -159,16 +166,18 @@ def _write_targets(pipeline: Any, copy: PoisonedCopy, support: dict[int, Any]) -
             v.name, outputs, v.index, to_uint8(image), to_uint8(clean), "illusion composite I_ILL"
         )
     names = dm.train_image_names
-    for index, image in pipeline.support_training_images(support).items():
+    for index, image in support_training_images(pipeline, support).items():
         clean = dm.cached_train[index]["image"]
         change = "support view: the poison's render"
         copy.write_training_image(names[index], outputs, index, to_uint8(image), to_uint8(clean), change)
 
 
 def _write_static_noise(pipeline: Any, copy: PoisonedCopy, attack: AttackConfig) -> None:
+    from stealth_ns.method.injection import support_indices
+
     dm = pipeline.datamanager
     outputs = dm.train_dataparser_outputs
-    poisoned = {v.index for v in pipeline.poison_views} | set(pipeline.support_indices)
+    poisoned = {v.index for v in pipeline.poison_views} | set(support_indices(pipeline))
     for index, name in enumerate(dm.train_image_names):
         if index in poisoned:
             continue

@@ -55,6 +55,8 @@ EXTERNAL_DIR = "external"
 #: The copy's record of the files it wrote (:mod:`stealth_ns.foundation.file_manifest`).
 FILES_RECORD = ".stealth-ns-copy.json"
 WRITTEN_BY = "stealth_ns.poisoning.dataset_copy"
+"""The copies' manifest label: the writer's first module path, kept so that copies written before and
+after its package was renamed read the same (a label, not an import path)."""
 _FRAME_FILE_KEYS = ("file_path", "depth_file_path", "mask_path")
 _SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 

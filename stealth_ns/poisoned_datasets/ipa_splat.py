@@ -31,9 +31,10 @@ import torch
 from torch import Tensor
 
 from stealth_ns.attack.config import AttackConfig
+from stealth_ns.attack.options import STEALTH_NS, spelled_as
 from stealth_ns.attack.record import AttackRecord, PoisonView
 from stealth_ns.foundation.fingerprint import dataset_fingerprint
-from stealth_ns.images.io import to_uint8
+from stealth_ns.images.io import cached_format, rgb_float, to_uint8
 from stealth_ns.poisoned_datasets.config import IPAConfig
 from stealth_ns.poisoned_datasets.data_only import victim_command
 from stealth_ns.poisoned_datasets.dataset_copy import (
@@ -64,8 +65,6 @@ class IPAEpochs:
     """The attack epochs of one IPA-Splat run, as a training callback (see the module docstring)."""
 
     def __init__(self, pipeline: Any, trainer: Any, views: list[PoisonView], cfg: IPAConfig) -> None:
-        from stealth_ns.method.pipeline import rgb_float
-
         self.pipeline, self.trainer, self.views, self.cfg = pipeline, trainer, views, cfg
         dm = pipeline.datamanager
         c2w = dm.train_dataset.cameras.camera_to_worlds
@@ -119,8 +118,6 @@ class IPAEpochs:
 
     def _hand_over(self) -> None:
         """The next training steps train on the poisoned images (the datamanager's replacement images)."""
-        from stealth_ns.method.pipeline import cached_format
-
         dm = self.pipeline.datamanager
         cached = {i: cached_format(img, dm.cached_train[i]["image"]) for i, img in self.poisoned.items()}
         dm.set_poison(cached, None)
@@ -137,6 +134,7 @@ def _check_views(config: Any, attack: AttackConfig) -> None:
         resolve_views(list(attack.views), dataset_image_names(Path(parser.data), files))
 
 
+@spelled_as(STEALTH_NS)
 def ipa_poison(
     data: Path,
     output: Path,
@@ -150,8 +148,9 @@ def ipa_poison(
     """Run IPA-Splat on ``data`` and write the poisoned copy into ``output``; returns a console summary.
 
     ``attack`` chooses the illusion and the backdoor (poisoned) views; its components are not used.
+    Errors name the attack's options as ``stealth-ns ipa-poison`` spells them (``--multi-view``).
     """
-    from stealth_ns.method.pipeline import build_poison_views
+    from stealth_ns.attack.poison_views import build_poison_views
 
     t0 = time.perf_counter()
     cfg.validate()
@@ -167,7 +166,13 @@ def ipa_poison(
     config.experiment_name, config.method_name, config.timestamp = "attacker", method, "run"
     trainer = setup_trainer(config)  # seeded as ns-train: the same seed gives the same poisoned images
     pipeline = trainer.pipeline
-    views = build_poison_views(dataclasses.replace(attack, enabled=True), pipeline.datamanager)
+    dm = pipeline.datamanager
+    views = build_poison_views(
+        dataclasses.replace(attack, enabled=True),
+        dm.train_image_names,
+        dm.train_dataset.cameras,
+        lambda i: dm.cached_train[i]["image"],
+    )
     epochs = IPAEpochs(pipeline, trainer, views, cfg)
     from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackLocation
 

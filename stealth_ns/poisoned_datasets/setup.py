@@ -4,6 +4,8 @@ Both dataset attacks need what training sets up -- the dataset as nerfstudio nor
 illusion targets of the poisoned views, a model initialised from the seed points -- without the
 victim's training loop. :func:`trainer_config` builds the ``TrainerConfig`` ``ns-train METHOD
 nerfstudio-data|colmap --data DATA`` would; :func:`setup_pipeline` sets up its pipeline only.
+The commands that run them take the attack's options as ``--NAME`` and run inside
+``spelled_as(STEALTH_NS)`` (:mod:`stealth_ns.attack.options`), so the pipeline's errors name them so.
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ random Gaussians in front of one pinhole camera with footprints of a few pixels.
 
 The process's freed memory is kept for reuse as in CPU training (:func:`keep_freed_memory`). With
 glibc's defaults every call's outputs would be fresh pages, and their page faults (with TLB
-flushes that interrupt the other cores) would be timed too: the 200k@512x512 forward + backward took
-252-281 ms that way against 219-221 ms with the setting (2-core Zen 3, 15 repeats, two runs each).
+flushes that interrupt the other cores) would be timed too (docs/cpu_rasterizer.md, "Benchmark", has
+both measurements).
 """
 
 from __future__ import annotations

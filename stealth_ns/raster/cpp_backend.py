@@ -2,8 +2,8 @@
 
 The C++ sources (``csrc/<kernel>_cpu.cpp`` for each name in ``_KERNELS`` and their Python bindings
 ``csrc/bindings.cpp``) are compiled on first use
-with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP; about 20 s on 2 cores) into a cache
-directory:
+with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP; build times: docs/cpu_rasterizer.md) into
+a cache directory:
 
 * ``$STEALTH_NS_CACHE/torch_ext/<key>`` when ``STEALTH_NS_CACHE`` is set,
 * ``~/.cache/stealth_ns/torch_ext/<key>`` otherwise,
@@ -76,9 +76,9 @@ _HEADERS = (
 # decide which (pixel, Gaussian) pairs pass the alpha >= 1/255 test, so forward and backward could
 # disagree.  -ffp-contract=off for the same reason (no FMA contraction that may differ between the
 # forward and backward loops); it also makes the results bitwise identical whatever the target ISA.
-# -march=native (saved 1-MP state, Zen 3: the rasterizer ~3x (forward) and ~5x (backward) faster
-# than baseline x86-64's SSE2, 4 floats a register) is safe because the cache key includes the CPU;
-# if the compiler rejects it we retry without.
+# -march=native (wider registers than baseline x86-64's SSE2, 4 floats a register; the speed-up is in
+# docs/cpu_rasterizer.md) is safe because the cache key includes the CPU; if the compiler rejects it
+# we retry without.
 _BASE_CFLAGS = [
     "-O3",
     "-fopenmp",
@@ -120,10 +120,10 @@ def _ninja_program() -> str:
     """The ``ninja`` that builds the extension, resolved: the one beside this Python (the venv's, which
     nerfstudio requires) when there is one, else the first on ``PATH``; ``""`` if none.
 
-    torch runs ``ninja`` by name, so left to ``PATH`` it ran the venv's (1.13) when the venv was
-    activated and the system's (1.11) when not, or none at all on a machine without a system ninja,
-    and then no kernels were built. Ninja 1.11 and 1.13 read each other's build logs as foreign:
-    alternating, each rebuilt every kernel (65-100 s on 2 cores).
+    torch runs ``ninja`` by name: left to ``PATH`` it would run the venv's when the venv is activated
+    and the system's when not, or none at all on a machine without a system ninja (then no kernels are
+    built). Two ninja versions read each other's build logs as foreign, so alternating between them
+    rebuilds every kernel each time (docs/training_step.md, "Two ninjas, one build directory").
     """
     beside = Path(sys.executable).parent / "ninja" if sys.executable else None  # "" when embedded
     if beside is not None and beside.is_file() and os.access(beside, os.X_OK):

@@ -27,9 +27,8 @@ from stealth_ns.foundation.figures import figure_grid, save_plot
 from stealth_ns.foundation.json_io import json_safe, write_json_atomic, write_text_atomic
 from stealth_ns.foundation.output_folder import unfinished
 from stealth_ns.foundation.provenance import software_and_hardware
-from stealth_ns.images.io import save_png
+from stealth_ns.images.io import rgb_float, save_png
 from stealth_ns.images.metrics import psnr
-from stealth_ns.method.pipeline import rgb_float
 from stealth_ns.report.arguments import check_arguments
 from stealth_ns.report.html import fmt, render_html
 from stealth_ns.report.numbers import neighbour_curve, pair_metrics

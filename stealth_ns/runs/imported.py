@@ -31,11 +31,11 @@ from stealth_ns.defences.signals import camera_matrices
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.gaussians.ply import GaussianCloud, read_gaussian_ply
 from stealth_ns.gaussians.transform import transform_cloud
+from stealth_ns.images.io import rgb_float
 from stealth_ns.images.metrics import psnr
 from stealth_ns.method.checkpoints import find_checkpoint, read_checkpoint
 from stealth_ns.method.model import StealthSplatModel
 from stealth_ns.method.model_cloud import LOADED_STEP, cloud_of_model, cloud_of_params, load_cloud
-from stealth_ns.method.pipeline import rgb_float
 from stealth_ns.method.render_view import render_camera
 from stealth_ns.poisoned_datasets.dataset_copy import SourceDataset
 from stealth_ns.runs.loaded import LoadedRun, load_run

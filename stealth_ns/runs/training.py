@@ -6,8 +6,8 @@ A run lives where nerfstudio puts it, ``OUTPUT_DIR/EXPERIMENT/METHOD/NAME`` (``-
 * ``ns-train`` exited 0 and :func:`train` then wrote the marker file :data:`MARKER`;
 * the final checkpoint ``nerfstudio_models/step-{N-1}.ckpt`` named in the marker exists
   (``ns-train`` exits 0 after Ctrl-C too, without it);
-* the marker records the same method, scene, extra arguments, dataparser (when not plain
-  ``nerfstudio-data``) and seed as the spec (and the same iteration count when the spec sets one).
+* the marker records the same method, scene, options (:attr:`TrainSpec.options`), dataparser (when not
+  plain ``nerfstudio-data``) and seed as the spec (and the same iteration count when the spec sets one).
 
 Anything else found in the run folder -- an interrupted run, or one trained with other settings
 under the same name -- is deleted by :func:`train` before it trains again.
@@ -31,18 +31,14 @@ from pathlib import Path
 from typing import Any, Literal
 
 from stealth_ns.attack.normal_draw import NOISE_GENERATOR
+from stealth_ns.attack.options import NS_TRAIN, AttackSettings, command_options, draws_view_noise
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import write_json_atomic
+from stealth_ns.method_configs.registry import METHODS
 
 #: Written into the run folder after a successful ``ns-train``; its presence (with the final
 #: checkpoint) is what "finished" means.
 MARKER = "stealth-ns-finished.json"
-# ns-train options that, set to False or 0, keep a stealth-splat training from drawing view noise
-_NOISE_SWITCHES = (
-    "--pipeline.attack.enabled",
-    "--pipeline.attack.view-noise",
-    "--pipeline.attack.noise-sigma0",
-)
 #: Default log of ``ns-train`` inside the run folder.
 TRAIN_LOG = "ns-train.log"
 
@@ -115,20 +111,9 @@ def _wait_with_peak_rss(proc: subprocess.Popen) -> tuple[int, float | None]:
     return proc.returncode, usage.ru_maxrss / 1024  # KiB on Linux
 
 
-def cli_options(args: tuple[str, ...]) -> dict[str, str]:
-    """Command-line options by name (``_`` read as ``-``, as tyro accepts both) with their values: the part
-    after ``=``, else the next argument ("" at the end; a flag's value is whatever follows it)."""
-    options: dict[str, str] = {}
-    for i, arg in enumerate(args):
-        name, eq, value = arg.partition("=")
-        if name.startswith("--"):
-            options[name.replace("_", "-")] = value if eq else (args[i + 1] if i + 1 < len(args) else "")
-    return options
-
-
 @dataclass(frozen=True)
 class TrainSpec:
-    """One ``ns-train`` run: which scene, under which name, with which extra options."""
+    """One ``ns-train`` run: which scene, under which name, with which options and attack settings."""
 
     scene: Path
     """The dataset (``--data`` of the dataparser): a nerfstudio-data folder or transforms JSON, or a
@@ -140,7 +125,11 @@ class TrainSpec:
     experiment: str = "runs"
     """``--experiment-name``: a sub-folder of ``output_dir``."""
     extra: tuple[str, ...] = ()
-    """Extra ns-train options before the dataparser, e.g. ``("--pipeline.attack.enabled", "False")``."""
+    """Other ns-train options before the dataparser, e.g. ``("--pipeline.model.background-color",
+    "white")``; the attack's go in :attr:`attack`."""
+    attack: AttackSettings = AttackSettings()
+    """The attack's settings (written after :attr:`extra` as ``--pipeline.attack.*``); none: the
+    method's defaults."""
     method: str = "stealth-splat-lite"
     """The nerfstudio method."""
     iterations: int | None = None
@@ -164,6 +153,8 @@ class TrainSpec:
                 raise StealthNSError(f"invalid {label} {part!r}: it must be a plain folder name")
         if self.iterations is not None and self.iterations < 1:
             raise StealthNSError(f"iterations must be at least 1, got {self.iterations}")
+        if any(word.startswith(NS_TRAIN.prefix) for word in self.extra):
+            raise ValueError(f"the attack's options go in TrainSpec.attack, not extra: {self.extra}")
 
     @property
     def run_dir(self) -> Path:
@@ -179,6 +170,11 @@ class TrainSpec:
     def marker_path(self) -> Path:
         return self.run_dir / MARKER
 
+    @property
+    def options(self) -> tuple[str, ...]:
+        """The ns-train options before the dataparser: :attr:`extra`, then :attr:`attack`'s."""
+        return (*self.extra, *command_options(self.attack, NS_TRAIN))
+
     def command(self) -> list[str]:
         """The full ``ns-train`` command line."""
         cmd = [bin_path("ns-train"), self.method, "--vis", "tensorboard"]
@@ -186,7 +182,7 @@ class TrainSpec:
         cmd += ["--timestamp", self.name, "--machine.seed", str(self.seed)]
         if self.iterations is not None:
             cmd += ["--max-num-iterations", str(self.iterations)]
-        cmd += [*self.extra, self.dataparser, "--data", str(self.scene), *self.dataparser_args]
+        cmd += [*self.options, self.dataparser, "--data", str(self.scene), *self.dataparser_args]
         return cmd
 
     def display_command(self) -> str:
@@ -198,7 +194,7 @@ class TrainSpec:
         identity: dict[str, Any] = {
             "method": self.method,
             "scene": self.scene_id or Path(self.scene).name,
-            "extra": list(self.extra),
+            "extra": list(self.options),
             "seed": self.seed,
         }
         if self.dataparser != "nerfstudio-data" or self.dataparser_args:  # old markers have no such key
@@ -208,14 +204,9 @@ class TrainSpec:
         return identity
 
     def draws_view_noise(self) -> bool:
-        """Whether the training draws the attack's view noise: a stealth-splat method whose extra options
-        do not turn the attack, its view noise or the noise's strength off. Options it cannot read count
-        as drawing (the run is retrained rather than wrongly reused)."""
-        if self.method not in ("stealth-splat", "stealth-splat-lite"):
-            return False
-        options = cli_options(self.extra)
-        off = ("false", "0", "0.0", "no")
-        return not any(options.get(key, "").strip().lower() in off for key in _NOISE_SWITCHES)
+        """Whether the training draws the attack's view noise: a stealth-splat method whose attack
+        settings keep the attack, its view noise and the noise's strength on."""
+        return self.method in METHODS and draws_view_noise(self.attack.config())
 
 
 @dataclass(frozen=True)

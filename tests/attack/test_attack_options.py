@@ -17,7 +17,16 @@ from stealth_ns.attack import config as config_module
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.illusion import BUILTIN_ILLUSIONS
 from stealth_ns.attack.noise_schedule import NOISE_DECAYS
-from stealth_ns.attack.validation import option_name, validate_attack_config
+from stealth_ns.attack.options import (
+    STEALTH_NS,
+    AttackSettings,
+    command_options,
+    draws_view_noise,
+    option_name,
+    option_words,
+    spelled_as,
+)
+from stealth_ns.attack.validation import validate_attack_config
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.scene_generator.writer import write_ply
 
@@ -196,3 +205,99 @@ def test_attack_package_loads_without_nerfstudio_and_its_config_without_torch():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[] False"
+
+
+# ------------------------------------------------------------------ the options on a command line
+@dataclasses.dataclass
+class _Pipeline:
+    attack: AttackConfig = dataclasses.field(default_factory=AttackConfig)
+
+
+@dataclasses.dataclass
+class _NsTrain:
+    """Where ns-train puts the attack (``--pipeline.attack.*``), parsed as nerfstudio parses it."""
+
+    pipeline: _Pipeline = dataclasses.field(default_factory=_Pipeline)
+
+
+def _ns_train_parse(words: tuple[str, ...]) -> AttackConfig:
+    import tyro
+
+    return tyro.cli(tyro.conf.FlagConversionOff[_NsTrain], args=list(words)).pipeline.attack
+
+
+def test_command_options_spell_each_type_as_the_commands_read_it():
+    settings = AttackSettings.of(
+        enabled=True, bandwidth=7.5, noise_sigma0=100.0, multi_view=2, injection_step=None,
+        t_min_fraction=0.1, poison_scale=2.0, views=("a.png", "3"), illusion_center=(0.25, 0.5),
+    )  # fmt: skip
+    assert command_options(settings) == (
+        "--pipeline.attack.enabled", "True", "--pipeline.attack.bandwidth", "7.5",
+        "--pipeline.attack.noise-sigma0", "100", "--pipeline.attack.multi-view", "2",
+        "--pipeline.attack.injection-step", "None", "--pipeline.attack.t-min-fraction", "0.1",
+        "--pipeline.attack.poison-scale", "2", "--pipeline.attack.views", "a.png", "3",
+        "--pipeline.attack.illusion-center", "0.25", "0.5",
+    )  # fmt: skip
+    assert _ns_train_parse(command_options(settings)) == settings.config()
+    # stealth-ns commands: no prefix, and a boolean is a flag
+    flags = AttackSettings.of(view_noise=True, density_guided=False, noise_sigma0=30.0)
+    assert command_options(flags, STEALTH_NS) == (
+        "--view-noise",
+        "--no-density-guided",
+        "--noise-sigma0",
+        "30",
+    )
+    # a float {:g} would round is written whole; a field given twice: both, the later one counts
+    assert command_options(AttackSettings.of(bandwidth=1.23456789)) == (
+        "--pipeline.attack.bandwidth",
+        "1.23456789",
+    )
+    twice = AttackSettings.of(noise_sigma0=100.0).then(noise_sigma0=30.0)
+    assert command_options(twice)[-1] == "30" and twice.config().noise_sigma0 == 30.0
+    assert _ns_train_parse(command_options(twice)).noise_sigma0 == 30.0
+    with pytest.raises(ValueError, match="not AttackConfig fields: t_max"):
+        AttackSettings.of(t_max=1.0)
+
+
+def test_every_preset_run_parses_back_to_its_settings():
+    """ns-train reads each bench run's attack options as the AttackConfig its typed settings make."""
+    from stealth_ns.method_configs.attack_experiments import RUNS
+
+    for run in RUNS:
+        attack = run.attack.then(views=("frame_00001.png",), seed=3)
+        assert _ns_train_parse(command_options(attack)) == attack.config(), run.key
+
+
+def test_draws_view_noise_reads_the_typed_attack():
+    assert draws_view_noise(AttackConfig())
+    for off in ({"enabled": False}, {"view_noise": False}, {"noise_sigma0": 0.0}):
+        assert not draws_view_noise(AttackConfig(**off)), off
+
+
+@pytest.mark.parametrize("name,value", [(n, vs[0]) for n, vs in BAD_VALUES.items()])
+def test_messages_use_the_spelling_of_the_command(name, value):
+    """poison-dataset / ipa-poison take the options as --NAME: their check names them so."""
+    with pytest.raises(StealthNSError) as info:
+        validate_attack_config(dataclasses.replace(AttackConfig(), **{name: value}), spelling=STEALTH_NS)
+    assert str(info.value).startswith(option_name(name, STEALTH_NS) + " must be "), str(info.value)
+    assert option_name(name, STEALTH_NS) == "--" + name.replace("_", "-")
+    assert "--pipeline.attack." not in str(info.value)
+    with pytest.raises(StealthNSError, match=r"^--support-views 2 shows .* needs --density-guided and"):
+        validate_attack_config(AttackConfig(support_views=2, density_guided=False), spelling=STEALTH_NS)
+
+
+def test_messages_inside_a_command_take_its_spelling():
+    """The pipeline's own messages (raised once it holds the data) name an option as the command running
+    spells it: ns-train's outside, stealth-ns' inside ``spelled_as(STEALTH_NS)`` (poison-dataset,
+    ipa-poison), a boolean as the flag that command takes; no text is rewritten."""
+    assert option_name("t_min") == "--pipeline.attack.t-min"
+    assert option_words("density_guided", False) == "--pipeline.attack.density-guided False"
+    with spelled_as(STEALTH_NS):
+        assert option_name("t_min") == "--t-min"
+        assert option_words("density_guided", False) == "--no-density-guided"
+        assert option_words("support_views", 2) == "--support-views 2"
+        with pytest.raises(StealthNSError, match=r"^--support-views 2 shows .* needs --density-guided and"):
+            validate_attack_config(AttackConfig(support_views=2, density_guided=False))
+    assert option_name("t_min") == "--pipeline.attack.t-min"
+    with pytest.raises(StealthNSError, match=r"^--pipeline.attack.support-views 2 .* needs --pipeline"):
+        validate_attack_config(AttackConfig(support_views=2, density_guided=False))

@@ -19,6 +19,7 @@ import pytest
 from conftest import run_cli
 
 from stealth_ns.attack.normal_draw import NOISE_GENERATOR
+from stealth_ns.attack.options import AttackSettings
 from stealth_ns.bench.attack import run_bench
 from stealth_ns.bench.execute import METRICS_FILE, METRICS_LOG
 from stealth_ns.bench.plan import bench_plan
@@ -29,7 +30,7 @@ from stealth_ns.datasets.seeded import SEED_POINTS_MARKER
 from stealth_ns.defence_eval.stealth import stealth_summary
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import write_json_atomic
-from stealth_ns.method_configs.attack_experiments import CLEAN_ARGS, DEFAULT_SCENES, RUNS, TABLES, get_table
+from stealth_ns.method_configs.attack_experiments import CLEAN, DEFAULT_SCENES, RUNS, TABLES, get_table
 from stealth_ns.runs import training as runs
 from stealth_ns.runs.training import TrainSpec, is_finished, run_status, train
 
@@ -189,11 +190,12 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     assert len(copies) == len(set(copies)) == 5 + 2 * 4
     assert all(c.parent.parent == tmp_path / "poisoned" for c in copies)
     # one run per distinct setting: no two presets of a scene train the same thing
-    settings = {(r.scene, r.args, r.view, r.poisoning, r.poison_args) for r in RUNS}
+    settings = {(r.scene, r.attack, r.view, r.poisoning, r.poison_attack) for r in RUNS}
     # orbit 22 + 9 of the stealth tables (2 more are Tables 3 and 5's), forward / facing / fox 8 + 11 each
     assert len(settings) == len(RUNS) == 88
     easy = plan.get("forward/easy")
-    assert "<EASY view of the KDE protocol>" in easy.spec.extra
+    assert "<EASY view of the KDE protocol>" in easy.spec.options
+    assert easy.spec.attack.config().views == ("<EASY view of the KDE protocol>",)
     assert plan.get("forward/ipa-easy").view == "<EASY view of the KDE protocol>"
     assert len(bench_plan(tmp_path, scenes=["orbit"], iterations=30).runs) == 22
     assert [p.key for p in bench_plan(tmp_path, tables=["2"], scenes=["forward"], iterations=30).runs] == [
@@ -234,14 +236,14 @@ def test_kde_views_go_on_the_command_line(tmp_path, monkeypatch):
         "hard": "frame_00041.png",
     }
     for level in ("easy", "median", "hard"):
-        extra = plan.get(f"forward/{level}").spec.extra
-        assert extra[extra.index("--pipeline.attack.views") + 1] == getattr(ranking, level)
-    assert "--pipeline.attack.views" not in plan.get("forward/clean").spec.extra
+        options = plan.get(f"forward/{level}").spec.options
+        assert options[options.index("--pipeline.attack.views") + 1] == getattr(ranking, level)
+    assert "--pipeline.attack.views" not in plan.get("forward/clean").spec.options
     # a dataset attack's view goes to its poisoning command, not to the victim's ns-train
     for name, level in [("ipa-easy", "easy"), ("ipa-median", "median"), ("ipa-hard", "hard"),
                         ("data-only-median", "median")]:  # fmt: skip
         planned = plan.get(f"forward/{name}")
-        assert "--pipeline.attack.views" not in planned.spec.extra
+        assert "--pipeline.attack.views" not in planned.spec.options
         assert _arg(planned.poison.command(), "--views") == getattr(ranking, level) == planned.view
     assert [t.number for t in plan.tables] == [1, 2]
 
@@ -503,9 +505,9 @@ def test_table_specs_are_consistent():
     # a dataset attack is a plain victim (attack off) poisoned at the same view(s) as its Ours row
     for run in RUNS:
         if run.poisoning:
-            assert run.args == CLEAN_ARGS and not run.clean, run.key
+            assert run.attack == CLEAN and not run.clean, run.key
     for k in (2, 3, 4):
-        assert by_key["orbit", f"ipa-views-{k}"].poison_args == ("--multi-view", str(k))
+        assert by_key["orbit", f"ipa-views-{k}"].poison_attack == AttackSettings.of(multi_view=k)
     for scene in ("forward", "facing", "fox"):
         for level in ("easy", "median", "hard"):
             assert by_key[scene, f"ipa-{level}"].view == level == by_key[scene, level].view
@@ -862,6 +864,7 @@ def test_train_spec_paths_and_finished_semantics(tmp_path, monkeypatch):
     assert not train(spec, stream=False).trained_now and fake.trained == ["r"]
     # other settings under the same name, or other iterations: not this run
     assert not is_finished(TrainSpec(**{**spec.__dict__, "extra": ("--x", "1")}))
+    assert not is_finished(TrainSpec(**{**spec.__dict__, "attack": AttackSettings.of(seed=1)}))
     assert not is_finished(TrainSpec(**{**spec.__dict__, "iterations": 6}))
     assert is_finished(TrainSpec(**{**spec.__dict__, "iterations": None}))
     (spec.run_dir / "nerfstudio_models" / "step-000000004.ckpt").unlink()
@@ -872,18 +875,26 @@ def test_attacked_runs_of_another_noise_generator_are_not_reused(tmp_path, monke
     """A training that draws view noise records the generator; a marker without it (an earlier version's
     Mersenne Twister draws) is retrained. Runs that draw none keep their identity (reused)."""
     base = {"scene": tmp_path / "scene", "name": "r", "output_dir": tmp_path / "runs", "iterations": 5}
-    attacked, clean = TrainSpec(**base), TrainSpec(**base, extra=("--pipeline.attack.enabled", "False"))
+    attacked, clean = TrainSpec(**base), TrainSpec(**base, attack=AttackSettings.of(enabled=False))
     assert attacked.identity()["view_noise"] == NOISE_GENERATOR
     assert "view_noise" not in clean.identity()
-    for extra in (
-        ("--pipeline.attack.enabled=False",),
-        ("--pipeline.attack.view-noise", "False"),
-        ("--pipeline.attack.view_noise", "False"),
-        ("--pipeline.attack.noise-sigma0", "0"),
+    assert clean.identity()["extra"] == ["--pipeline.attack.enabled", "False"]
+    for attack in (
+        AttackSettings.of(enabled=False),
+        AttackSettings.of(view_noise=False),
+        AttackSettings.of(noise_sigma0=0.0),
+        AttackSettings.of(view_noise=False, noise_sigma0=30.0),
+        AttackSettings.of(noise_sigma0=30.0, enabled=True).then(enabled=False),  # the last one counts
     ):
-        assert not TrainSpec(**base, extra=extra).draws_view_noise(), extra
-    assert TrainSpec(**base, extra=("--pipeline.attack.noise-sigma0", "30")).draws_view_noise()
+        assert not TrainSpec(**base, attack=attack).draws_view_noise(), attack
+    assert TrainSpec(**base, attack=AttackSettings.of(noise_sigma0=30.0)).draws_view_noise()
+    assert TrainSpec(
+        **base, attack=AttackSettings.of(view_noise=False).then(view_noise=True)
+    ).draws_view_noise()
     assert not TrainSpec(**base, method="splatfacto").draws_view_noise()
+    # the attack's options are typed settings, never strings in extra (which nothing reads back)
+    with pytest.raises(ValueError, match="TrainSpec.attack"):
+        TrainSpec(**base, extra=("--pipeline.attack.enabled", "False"))
 
     monkeypatch.setattr(runs, "run_command", FakeTraining())
     train(attacked, stream=False)

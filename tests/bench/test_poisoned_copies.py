@@ -17,6 +17,7 @@ import tyro
 from test_bench_attack import ranked_forward_scene
 
 from stealth_ns.attack.normal_draw import NOISE_GENERATOR
+from stealth_ns.attack.options import AttackSettings
 from stealth_ns.bench import poisoned_copies
 from stealth_ns.bench.attack import run_bench
 from stealth_ns.bench.plan import bench_plan
@@ -25,7 +26,8 @@ from stealth_ns.cli import COMMANDS
 from stealth_ns.datasets.generated import scene_dir
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import write_json_atomic
-from stealth_ns.method_configs.attack_experiments import CLEAN_ARGS
+from stealth_ns.method_configs.attack_experiments import CLEAN
+from stealth_ns.poisoned_datasets.config import data_only_attack_defaults
 from stealth_ns.runs.training import bin_path
 from stealth_ns.scene_generator import make_scene
 
@@ -38,7 +40,7 @@ def _arg(cmd: list[str], flag: str) -> str:
 
 def _job(tmp_path: Path, kind: str = "ipa", **changes) -> PoisonJob:
     job = PoisonJob(
-        kind, tmp_path / "scene", tmp_path / "poisoned" / "exp" / "ipa-easy", VIEW, (),
+        kind, tmp_path / "scene", tmp_path / "poisoned" / "exp" / "ipa-easy", VIEW, AttackSettings(),
         "stealth-splat-lite", 0, 30,
     )  # fmt: skip
     return dataclasses.replace(job, **changes)
@@ -63,8 +65,8 @@ def test_identity_and_scene_id_follow_the_settings(tmp_path):
     assert job.scene_id == _job(tmp_path).scene_id  # deterministic
     # every setting that makes another copy gives another scene id (so the victim run is not reused)
     changed = [
-        {"view": "frame_00009.png"}, {"view": None}, {"args": ("--multi-view", "2")},
-        {"args": ("--multi-view", "3")}, {"seed": 1}, {"method": "stealth-splat"},
+        {"view": "frame_00009.png"}, {"view": None}, {"attack": AttackSettings.of(multi_view=2)},
+        {"attack": AttackSettings.of(multi_view=3)}, {"seed": 1}, {"method": "stealth-splat"},
         {"source": tmp_path / "other"}, {"iterations": 31}, {"kind": "data-only"},
     ]  # fmt: skip
     ids = {job.scene_id, *(_job(tmp_path, **c).scene_id for c in changed)}
@@ -79,8 +81,18 @@ def test_identity_and_scene_id_follow_the_settings(tmp_path):
     assert _job(tmp_path, kind="data-only", seed=1).scene_id != data_only.scene_id
     assert _job(tmp_path, kind="data-only", view=None).scene_id != data_only.scene_id
     # static view noise: the generator is part of what the copy was made from
-    noisy = _job(tmp_path, kind="data-only", args=("--view-noise", "--noise-sigma0", "30"))
+    noisy = _job(tmp_path, kind="data-only", attack=AttackSettings.of(view_noise=True, noise_sigma0=30.0))
     assert noisy.identity()["view_noise"] == NOISE_GENERATOR and "view_noise" not in data_only.identity()
+    assert noisy.identity()["args"] == [
+        "--view-noise",
+        "--noise-sigma0",
+        "30",
+    ]  # as poison-dataset spells them
+    # poison-dataset's own default is no noise: only settings that turn it on make noise
+    quiet = _job(tmp_path, kind="data-only", attack=AttackSettings.of(noise_sigma0=30.0))
+    assert "view_noise" not in quiet.identity()
+    off = _job(tmp_path, kind="data-only", attack=AttackSettings.of(view_noise=True).then(view_noise=False))
+    assert "view_noise" not in off.identity() and off.args == ("--view-noise", "--no-view-noise")
 
 
 def test_marker_and_log_sit_beside_the_copy(tmp_path):
@@ -116,7 +128,7 @@ def test_ready_needs_a_complete_copy_made_from_the_same_settings(tmp_path):
 
 
 def test_command_of_each_kind(tmp_path):
-    ipa = _job(tmp_path, args=("--multi-view", "2"))
+    ipa = _job(tmp_path, attack=AttackSettings.of(multi_view=2))
     cmd = ipa.command()
     assert cmd[0] == bin_path("stealth-ns") and cmd[1] == "ipa-poison"
     assert _arg(cmd, "--data") == str(tmp_path / "scene") and _arg(cmd, "--output") == str(ipa.output)
@@ -126,10 +138,9 @@ def test_command_of_each_kind(tmp_path):
     assert cmd[-2:] == ["--multi-view", "2"]  # the run's own options last
     assert _job(tmp_path, view=None).command().count("--views") == 0  # the attack's default view
     # a short bench gets one attack epoch half-way (ipa-poison refuses --every >= --iterations);
-    # a full-length one keeps the paper's 200 steps per epoch, and the run's own --every wins
+    # a full-length one keeps the paper's 200 steps per epoch
     assert _arg(cmd, "--every") == "15"
     assert "--every" not in _job(tmp_path, iterations=3000).command()
-    assert _job(tmp_path, args=("--every", "7")).command().count("--every") == 1
 
     data_only = _job(tmp_path, kind="data-only", seed=3)
     cmd = data_only.command()
@@ -144,17 +155,19 @@ def test_command_of_each_kind(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("kind", "view", "args"),
+    ("kind", "view", "attack"),
     [
-        ("ipa", VIEW, ()),
-        ("ipa", None, ("--multi-view", "3")),
-        ("data-only", VIEW, ()),
-        ("data-only", None, ()),
+        ("ipa", VIEW, AttackSettings()),
+        ("ipa", None, AttackSettings.of(multi_view=3)),
+        ("data-only", VIEW, AttackSettings()),
+        ("data-only", None, AttackSettings()),
+        ("data-only", None, AttackSettings.of(view_noise=True, noise_sigma0=30.0, density_guided=False)),
+        ("data-only", VIEW, AttackSettings.of(support_views=2, t_min=0.25, injection_step=0)),
     ],
 )
-def test_command_parses_as_the_cli_command(tmp_path, kind, view, args):
+def test_command_parses_as_the_cli_command(tmp_path, kind, view, attack):
     """The bench's command line is one the real `stealth-ns` command accepts, with the job's settings."""
-    job = _job(tmp_path, kind=kind, view=view, args=args, seed=2)
+    job = _job(tmp_path, kind=kind, view=view, attack=attack, seed=2)
     cmd = job.command()
     parsed = tyro.cli(COMMANDS[cmd[1]], args=cmd[2:], prog=f"stealth-ns {cmd[1]}")
     assert parsed.data == job.source and parsed.output == job.output and parsed.overwrite
@@ -162,9 +175,11 @@ def test_command_parses_as_the_cli_command(tmp_path, kind, view, args):
     views = () if view is None else (view,)
     if kind == "ipa":
         assert parsed.seed == 2 and parsed.iterations == 30 and parsed.views == views
-        assert parsed.multi_view == (int(args[1]) if args else 1)
+        assert parsed.multi_view == attack.config().multi_view
     else:
         assert parsed.attack.seed == 2 and parsed.attack.views == views and parsed.attack.enabled
+        expected = attack.config(data_only_attack_defaults())
+        assert dataclasses.replace(parsed.attack, seed=0, views=()) == expected
 
 
 def test_make_runs_the_command_and_writes_the_marker_only_on_success(tmp_path, monkeypatch):
@@ -196,7 +211,7 @@ def test_ensure_copies_makes_what_is_not_ready_and_reports_failures(tmp_path, mo
         "orbit/ipa": _job(tmp_path, output=tmp_path / "p" / "ipa"),
         "orbit/data-only": _job(tmp_path, kind="data-only", output=tmp_path / "p" / "data-only"),
         "orbit/ipa-views-2": _job(
-            tmp_path, output=tmp_path / "p" / "ipa-views-2", args=("--multi-view", "2")
+            tmp_path, output=tmp_path / "p" / "ipa-views-2", attack=AttackSettings.of(multi_view=2)
         ),
     }
     _write_copy(jobs["orbit/data-only"])  # made earlier: reused
@@ -254,8 +269,7 @@ def test_dry_run_plans_the_poisoned_copies(ranked_forward, capsys):
         # the victim: a plain run (attack off) on the copy, beside the scene's other runs
         assert p.spec.scene == copy and p.spec.scene_id == p.poison.scene_id
         assert p.spec.experiment == plan.get(f"{scene}/clean").spec.experiment
-        assert p.spec.extra == CLEAN_ARGS
-        assert "--pipeline.attack.views" not in p.spec.extra and "--pipeline.attack.seed" not in p.spec.extra
+        assert p.spec.attack == CLEAN and p.spec.options == ("--pipeline.attack.enabled", "False")
         assert p.spec.command()[-3:] == ["nerfstudio-data", "--data", str(copy)]
         assert p.status == "missing" and not p.poison.ready()
     assert poisoned["orbit/ipa"].poison.view is None and poisoned["orbit/ipa"].view is None
@@ -263,7 +277,7 @@ def test_dry_run_plans_the_poisoned_copies(ranked_forward, capsys):
     assert ipa_median.poison.view == "frame_00020.png" == ipa_median.view
     assert poisoned["forward/data-only-median"].poison.view == "frame_00020.png"
     # the in-loop runs still carry their view and seed
-    median = plan.get("forward/median").spec.extra
+    median = plan.get("forward/median").spec.options
     assert _arg(list(median), "--pipeline.attack.views") == "frame_00020.png"
     assert _arg(list(median), "--pipeline.attack.seed") == "0"
 

@@ -460,6 +460,19 @@ def test_missing_view_is_named_with_a_suggestion(scene, tmp_path):
     assert not (tmp_path / "out").exists()  # refused before the copy is written
 
 
+def test_pipeline_errors_name_the_options_as_this_command_spells_them(scene, tmp_path):
+    """An error the in-loop pipeline raises once it holds the data (too few views for the support
+    views) names the option as poison-dataset takes it."""
+    attack = dataclasses.replace(DATA_ONLY, support_views=8)
+    with pytest.raises(
+        StealthNSError, match=r"^--support-views 8: view \d+ has only \d+ other training"
+    ) as err:
+        poison_dataset(scene, tmp_path / "out", attack)
+    one_line(str(err.value))
+    assert "--pipeline.attack." not in str(err.value)
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize(
     "extra, expected",
     [

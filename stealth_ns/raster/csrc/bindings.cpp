@@ -1,6 +1,6 @@
 // The Python module of the compiled CPU kernels: one binding per kernel (declared in the headers).
 // Only this file includes torch's pybind11 glue; the kernels include ATen alone, which keeps the
-// first build short (torch/extension.h alone takes ~20 s to parse per file on a 2-core machine).
+// first build short (torch/extension.h is slow to parse: docs/cpu_rasterizer.md, "Compilation and cache").
 
 #include "composite_cpu.h"
 #include "densify_cpu.h"

@@ -15,7 +15,7 @@ namespace stealth_ns {
 struct CameraView {
     float V[12];  // the first three rows of the world-to-camera matrix
     float fx, cx, fy, cy;
-    int32_t w;  // int32 pixel indices: GCC vectorises the lookup as a gather (1-MP facing: 4.0 -> 1.4 s)
+    int32_t w;  // int32 pixel indices: GCC vectorises the lookup as a gather
     float fw, fh, fw1, fh1;  // w, h, w - 1 and h - 1 as floats (the reference's bounds and clamp)
     const float *bound;  // per pixel: the depth bound (CameraDepths.depth_bounds: one read per lookup)
 };

@@ -2,8 +2,8 @@
 //   rgb = clamp(render + (1 - alpha) * background, 0, 1),
 // forward and backward in one pass each, instead of torch's chain of full-image operations (rsub, mul,
 // add, clamp; in the backward the clamp's two comparisons, `and` and `where`, the product with the
-// background, its sum over channels and a negation): each reads and writes the whole image, and at
-// 1 MP that memory traffic was ~8 ms of a training step.
+// background, its sum over channels and a negation): each reads and writes the whole image (what that
+// memory traffic costs: docs/cpu_rasterizer.md).
 //
 // The readable reference with the same contract is the torch expression in
 // stealth_ns/raster/composite.py, and every value is rounded as torch rounds it (tests compare bitwise):
@@ -42,7 +42,7 @@ void check_args(const at::Tensor &render, const at::Tensor &alpha, const at::Ten
 inline float clamp01(float x) { return std::min(std::max(x, 0.f), 1.f); }  // torch's: NaN stays NaN
 
 // Pixels [p0, p1) of the forward; DT > 0: D known at compile time (with D only known at run time GCC
-// kept the loop scalar: 1008x756, Zen 3, 2 threads, 2.18 -> 1.18 ms).
+// keeps the loop scalar).
 template <int DT>
 void fwd_pixels(const float *__restrict__ r, const float *__restrict__ a, const float *__restrict__ bg,
                 float *__restrict__ out, int64_t D_rt, int64_t p0, int64_t p1) {
@@ -54,7 +54,7 @@ void fwd_pixels(const float *__restrict__ r, const float *__restrict__ a, const 
 }
 
 // Pixels [p0, p1) of the backward; DT > 0: D known at compile time. No branch on the data (the clamp's
-// test is a select): a render partly outside [0, 1] made the branches mispredict.
+// test is a select): a render partly outside [0, 1] makes branches mispredict.
 template <int DT>
 void bwd_pixels(const float *__restrict__ r, const float *__restrict__ a, const float *__restrict__ bg,
                 const float *__restrict__ v, float *__restrict__ vr, float *__restrict__ va, int64_t D_rt,
@@ -66,7 +66,7 @@ void bwd_pixels(const float *__restrict__ r, const float *__restrict__ a, const 
         for (int64_t c = 0; c < D; ++c) {
             const float x = r[p * D + c] + t * bg[c];
             const bool inside = (x >= 0.f) & (x <= 1.f);
-            const float up = v[p * D + c];  // loaded whatever the test: a conditional load made it a branch
+            const float up = v[p * D + c];  // loaded whatever the test: a conditional load makes it a branch
             const float vx = inside ? up : 0.f;
             vr[p * D + c] = vx;
             const float prod = vx * bg[c];

@@ -1,8 +1,8 @@
 // The attack's per-pixel view noise (paper section 3.4) drawn on all cores, one pass over the image.
 //
-// torch.randn draws with one Mersenne Twister and cannot split its stream across threads: at 1 MP
-// (2.3 M values) it took ~8 ms of every noised training step, and the add, round, clamp and cast
-// after it another ~2 ms.  Here deviate pair j of stream `key` is a pure function of (key, j):
+// torch.randn draws with one Mersenne Twister and cannot split its stream across threads, and the add,
+// round, clamp and cast after it are more passes over the image (timings: docs/cpu_rasterizer.md).
+// Here deviate pair j of stream `key` is a pure function of (key, j):
 //
 //   h        = splitmix64(key + (j + 1) * 0x9E3779B97F4A7C15)      (the SplitMix64 sequence)
 //   u1       = ((h >> 40) + 1) / 2^24                 in (0, 1]
@@ -49,7 +49,7 @@ inline float ln_u1(int32_t u) {  // ln(u / 2^24), u = (h >> 40) + 1
     float m;
     std::memcpy(&m, &mbits, 4);  // [1, 2)
     // m > sqrt(2) as a comparison of the bit patterns (the same for positive floats) and the halving as
-    // a product with 0.5 or 1 (exact): the float comparison's select kept the AVX2 build's loop scalar
+    // a product with 0.5 or 1 (exact): a float comparison's select keeps the AVX2 build's loop scalar
     const float sqrt2 = (float)1.41421356237309504880;
     uint32_t sqrt2_bits;
     std::memcpy(&sqrt2_bits, &sqrt2, 4);
@@ -93,7 +93,7 @@ inline void normal_pair(int32_t u, int32_t n2, float &z0, float &z1) {
     c = c * z + (float)4.166664568298827E-2;
     c = c * z * z - (float)0.5 * z + 1.f;
     // quarter turn k: (cos, sin) = (c, s), (-s, c), (-c, -s), (s, -c) for k = 0, 1, 2, 3, as one swap and
-    // two sign flips (single selects: the AVX2 build did not vectorise a chain of them)
+    // two sign flips (single selects: the AVX2 build does not vectorise a chain of them)
     const int k = q & 3;
     const bool odd = (k & 1) != 0;
     const float a0 = odd ? s : c, a1 = odd ? c : s;
@@ -105,9 +105,8 @@ inline void normal_pair(int32_t u, int32_t n2, float &z0, float &z1) {
 
 // Deviates 2 j0 .. 2 j1 - 1 into buf (j1 - j0 <= kPairs): branch-free loops the compiler vectorises.
 // With AVX-512DQ one loop (64-bit lane multiplies for the hash).  Without them the hash's vectors hold
-// 4 lanes, and in one loop so did the float part: the hash gets a loop of its own, the float part runs
-// 8 lanes wide (1008x756x3 deviates, Zen 3 AVX2, 2 threads: 3.5 ms, 4.5 ms in one loop; 18.2 ms when
-// the float part's selects kept the loop scalar).
+// 4 lanes, and in one loop so would the float part: the hash gets a loop of its own, the float part
+// runs 8 lanes wide (timings: docs/cpu_rasterizer.md).
 inline void fill_pairs(uint64_t key, int64_t j0, int64_t j1, float *buf) {
 #if defined(__AVX512DQ__)
     for (int64_t j = j0; j < j1; ++j) {
@@ -156,7 +155,7 @@ at::Tensor noisy_u8(const at::Tensor &image, double sigma, int64_t key) {
     uint8_t *out_all = out.data_ptr<uint8_t>();
     const float s = (float)sigma;
     for_deviates(image.numel(), (uint64_t)key, [=](int64_t i0, int64_t i1, const float *__restrict__ z) {
-        // local restrict pointers: a uint8 store may alias anything, which kept this loop scalar
+        // local restrict pointers: a uint8 store may alias anything, which would keep this loop scalar
         const uint8_t *__restrict__ in = in_all + i0;
         uint8_t *__restrict__ o = out_all + i0;
         for (int64_t i = 0; i < i1 - i0; ++i) {

@@ -95,14 +95,14 @@ inline vf vld(const float *p) { return *reinterpret_cast<const vf_u *>(p); }
 inline void vst(float *p, vf v) { *reinterpret_cast<vf_u *>(p) = v; }
 inline vi vild(const int32_t *p) { return *reinterpret_cast<const vi_u *>(p); }
 inline void vist(int32_t *p, vi v) { *reinterpret_cast<vi_u *>(p) = v; }
-// a in every lane of an 8- or 16-lane vector (written out: GCC built the lane loop of a generic
+// a in every lane of an 8- or 16-lane vector (written out: GCC builds the lane loop of a generic
 // version one insert at a time, ~10 instructions on the way to every block's sigma)
 template <class F> inline F bcast(float a);
 template <> inline vf bcast<vf>(float a) { return vf{a, a, a, a, a, a, a, a}; }
 inline vf vset(float a) { return bcast<vf>(a); }
 inline vi viset(int32_t a) { return vi{a, a, a, a, a, a, a, a}; }
-// "any lane set": one vptest with AVX (GCC compiled the four-word test below to lane extractions and
-// ORs in general registers; as vptest the 1-MP forward on saved states took 2-5 % less, Zen 3)
+// "any lane set": one vptest with AVX (GCC compiles the four-word test below to lane extractions and
+// ORs in general registers; docs/cpu_rasterizer.md)
 inline bool vany(vi m) {
 #if defined(__AVX__)
     return !_mm256_testz_si256((__m256i)m, (__m256i)m);
@@ -137,10 +137,9 @@ inline void vsums(const vf *v, int n, float *out) {
 // Lane-wise comparisons (-1 / 0 lanes) and selects of the 8-lane vectors.  Where a register holds 4
 // floats (NEON, SSE; simd_width.h), GCC compiles the comparisons and selects of an 8-lane vector lane by
 // lane, a scalar compare and select per lane (it splits only the arithmetic in halves): there they are
-// applied to the two 4-lane halves (aarch64, GCC 12: 1942 scalar compares and 3146 scalar selects in
-// this file's object code before, 70 and 2 after).  Elsewhere they are the vector operators
-// themselves, as macros: as inline functions the same operators gave other (equally correct) AVX2 and
-// AVX-512 machine code than before.  The lanes' values are the same either way.
+// applied to the two 4-lane halves (docs/cpu_rasterizer.md).  Elsewhere they are the vector operators
+// themselves, as macros: as inline functions the same operators give other (equally correct) AVX2 and
+// AVX-512 machine code.  The lanes' values are the same either way.
 #if STEALTH_NS_FLOAT_LANES >= 8
 #define V_LT(a, b) ((a) < (b))
 #define V_LE(a, b) ((a) <= (b))
@@ -227,11 +226,10 @@ template <class V> inline Pair<V> vmin(Pair<V> x, Pair<V> y) { return {vmin(x.a,
 // 16-lane vectors: two blocks of 8 pixels side by side, lanes 0-7 the first block and 8-15 the
 // second.  A Gaussian's blocks are evaluated two at a time: the work of a block is one long chain
 // of dependent operations (the exp polynomial, the division of the backward), and one block at a
-// time the processor did not overlap enough of them.  1 MP, 1 thread, Zen 4: backward 132 -> 105 ms,
-// forward 76 -> 66 ms.  Every lane does the operations of an 8-wide block, so the results are bitwise
-// the same.  One register where it holds 16 floats (AVX-512).  Elsewhere a Pair of 8-lane vectors
-// (simd_width.h: as one 64-byte vector the AVX2 build was 5-7 times slower, saved 1-MP state, Zen 3,
-// 2 threads: forward 303.6 -> 61.8 ms, backward 506.2 -> 76.4 ms as a Pair).
+// time the processor does not overlap enough of them (docs/cpu_rasterizer.md).  Every lane does the
+// operations of an 8-wide block, so the results are bitwise the same.  One register where it holds
+// 16 floats (AVX-512).  Elsewhere a Pair of 8-lane vectors (simd_width.h: GCC compiles a 64-byte
+// vector's comparisons and selects lane by lane there).
 #if STEALTH_NS_FLOAT_LANES >= 16
 #define STEALTH_NS_NATIVE16 1
 typedef float vf16 __attribute__((vector_size(64)));
@@ -260,7 +258,7 @@ inline vf vcvt(vi v) { return __builtin_convertvector(v, vf); }
 
 // Lane masks of the per-pixel tests, 8 lanes (lmask) or 16 (lmask16).  With AVX-512VL they live in
 // mask registers (__mmask8, __mmask16), and the tests, selects and "any lane" checks are single
-// instructions; GCC's vector booleans instead went through general registers lane by lane.  Elsewhere
+// instructions; GCC's vector booleans go through general registers lane by lane.  Elsewhere
 // they are vector booleans (-1 / 0 lanes).  Comparisons are ordered and quiet, as the vector operators:
 // false when a lane is NaN.
 #if defined(__AVX512VL__) && defined(__AVX512DQ__)
@@ -637,12 +635,11 @@ template <> struct Blocks<4> {
 
 // Blocks per call of the rasterizer's per-block body.  The backward's body is one long chain of
 // dependent operations per block (sigma, the exp polynomial, the division, the gradient terms): two
-// blocks at a time left the processor waiting on it, four let it overlap twice the work (Zen 4, saved
-// 1-MP state, 2 threads, alternating with two at a time: backward -19 %, orbit unchanged).  The
-// forward's shorter body did not gain (1 MP +1 %, orbit +4 %), so it takes two.
-// Where a register holds 4 floats (SSE, NEON) an 8-pixel block already takes two, and one block at a
-// time: x86-64's SSE2 build (16 registers), saved 1-MP state, Zen 3, 2 threads, alternating with two
-// at a time: forward 0.33 -> 0.19 s, backward 0.49 -> 0.39 s.  (NEON has 32 registers: not measured.)
+// blocks at a time leave the processor waiting on it, four let it overlap twice the work.  The
+// forward's shorter body does not gain from four, so it takes two.
+// Where a register holds 4 floats (SSE, NEON) an 8-pixel block already takes two registers, and one
+// block at a time is the faster choice on SSE2's 16 registers (NEON's 32: not measured).  Timings:
+// docs/cpu_rasterizer.md.
 #if STEALTH_NS_FLOAT_LANES < 8
 constexpr int kForwardBlocks = 1;
 constexpr int kBackwardBlocks = 1;
@@ -701,8 +698,8 @@ class BlockVisitor {
   private:
     // Tiles of 9-16 pixels (gsplat's default is 16): a row has two blocks, columns [0, 8) and [8, 16).
     // The blocks in use are the set bits of one word, bit 2 r + h for row r, half h, computed for
-    // all rows at once instead of row by row (the listing, spans included, is about a quarter of the
-    // 1-MP forward; this form of it gained ~5 % of the forward).
+    // all rows at once instead of row by row (the listing, spans included, is a large part of the
+    // forward: docs/cpu_rasterizer.md).
     template <int MaxU, class Body>
     void visit_two_per_row(const GPrep &g, int y_base, int y0, int y1, const int32_t *lo, const int32_t *hi, Body &body) {
         const vi lane = {0, 1, 2, 3, 4, 5, 6, 7};
@@ -807,11 +804,9 @@ inline TaskPixels task_pixels(int64_t task, const TileGeom &g) {
 // Reads one byte of every cache line of the rectangle r of a per-pixel array (`bytes` bytes per
 // pixel, rows of g.W pixels; camera r.cam of a [C, H, W, ...] array), so that the task that reads or
 // writes those pixels later finds them in the cache.  Each of the rectangle's rows lies in another
-// page.  Read one pixel at a time when the task comes, they were cache misses the processor could
-// not overlap (the loop over a row's pixels fills its reorder window): the backward's per-tile set-up
-// took 11-13 ms of a 1-MP backward on one thread, 2 ms with the lines in cache.
-// __builtin_prefetch of the same lines changed nothing on the Zen 4 VM (hints are dropped, most
-// likely on a TLB miss); plain loads are not.
+// page.  Read one pixel at a time when the task comes, they are cache misses the processor cannot
+// overlap (the loop over a row's pixels fills its reorder window).  Plain loads, not
+// __builtin_prefetch: prefetch hints are dropped, most likely on a TLB miss (docs/cpu_rasterizer.md).
 inline void touch_rect(const void *base, const TaskPixels &r, const TileGeom &g, int bytes) {
     const char *p = static_cast<const char *>(base) + r.cam * (int64_t)g.H * g.W * bytes;
     uint32_t sink = 0;
@@ -828,7 +823,7 @@ struct PixelArray {
     int bytes;
 };
 
-// The tasks of `order`, handed out one at a time in that order (as schedule(dynamic, 1) did).  A
+// The tasks of `order`, handed out one at a time in that order (as schedule(dynamic, 1) does).  A
 // thread claims its next task before it runs the current one and touches that next task's pixels in
 // `arrays` meanwhile.  Which thread runs a task never changes its result.
 class TaskQueue {
@@ -1087,8 +1082,8 @@ void bwd_impl(
                 for (int k = 0; k < D; ++k) grgb[k] = vset(0.f);
                 vf g_ca = vset(0.f), g_cb = g_ca, g_cc = g_ca, g_x = g_ca, g_y = g_ca, g_o = g_ca;
                 bool hit = false;
-                // always_inline: GCC kept this large body an out-of-line call per two blocks, so the
-                // nine per-Gaussian sums above went through memory (closure references) at every call
+                // always_inline: otherwise GCC keeps this large body an out-of-line call per two blocks,
+                // and the nine per-Gaussian sums above go through memory (closure references) at every call
                 visitor.visit<kBackwardBlocks>(gp, x_base, tx1, y_base, ty1, [&](auto u, const Block *b) __attribute__((always_inline)) {
                     using B = Blocks<decltype(u)::value>;
                     using F = typename B::F;

@@ -2,8 +2,8 @@
 // pass: for every ray, its samples, their density (the KDE grid's nearest voxel), their penalty (the
 // innocent cameras that see them, plus the support cameras that do not) and the tie-break, each ray
 // on one thread.  The torch version runs ~35 multi-threaded operations per chunk of 256 rays; each
-// ends with all threads waiting for the slowest, and with one of this VM's two cores busy elsewhere
-// the fox capture's search took 6.25 s instead of 0.75 s.  Here the search is one parallel loop.
+// ends with all threads waiting for the slowest, so one core busy elsewhere stalls every step
+// (docs/cpu_rasterizer.md).  Here the search is one parallel loop.
 //
 // The result is the torch version's exactly (tests/test_placement.py): every float expression is
 // its, in its order, rounded to float32 (-ffp-contract=off):

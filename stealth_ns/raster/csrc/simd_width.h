@@ -1,10 +1,9 @@
 // The number of floats in one vector register of the build's target, for the kernels' GCC vector
 // extensions: 16 with AVX-512, 8 with AVX2, 4 elsewhere (SSE, NEON).  Vectors wider than a register are
 // not free: GCC compiles their comparisons and selects lane by lane, a scalar compare per lane
-// (Zen 3 AVX2, 2 threads: the 1-MP training step 1093.6 ms with 16-lane vectors in the rasterizer,
-// projection and SSIM, 197.5 ms with one register's width; docs/training_step.md, "The build for
-// processors without AVX-512" and "aarch64 and other processors with 4-float registers").  The lane
-// count changes no result (tests/test_portable_build.py).
+// (timings: docs/cpu_rasterizer.md; docs/training_step.md, "The build for processors without
+// AVX-512" and "aarch64 and other processors with 4-float registers").  The lane count changes no
+// result (tests/test_portable_build.py).
 #pragma once
 
 #if defined(__AVX512F__)

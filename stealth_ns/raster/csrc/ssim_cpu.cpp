@@ -34,9 +34,8 @@ void check_image(const at::Tensor &t, const char *name) {
 
 // The filters below keep each output's sum in registers, VL outputs at a time, over the window's taps
 // in order (the sum starts at 0): the same additions in the same order as accumulating whole rows in
-// memory tap by tap, which took 5 loads and stores per tap and output.  VL is one register
-// (simd_width.h; 16 lanes on AVX2 made this kernel's forward 80.0 ms and backward 56.0 ms, against
-// 11.4 and 9.7 ms with 8: random 1008x756 images, Zen 3, 2 threads).
+// memory tap by tap, which takes 5 loads and stores per tap and output.  VL is one register
+// (simd_width.h; wider vectors are compiled lane by lane: docs/cpu_rasterizer.md).
 constexpr int64_t VL = STEALTH_NS_FLOAT_LANES;
 typedef float vec __attribute__((vector_size(4 * VL)));
 typedef float vec_u __attribute__((vector_size(4 * VL), aligned(4), __may_alias__));
@@ -182,9 +181,8 @@ void ssim_row(const float *__restrict__ m, int64_t Wo, float c1, float c2, float
 
 // The sums of Q planes of n values each (plane q at s + q n) into out[q], each in index order from 0,
 // in double: the same value for any thread count.  Each sum is one chain of dependent additions; the Q
-// chains side by side let the processor overlap them (with one plane per task, where on 2 threads one
-// thread summed two of an RGB image's planes one after the other, the 1008x756 forward took 0.9-1.5 ms
-// longer, Zen 3).
+// chains side by side let the processor overlap them (with one plane per task a thread sums planes one
+// after the other, one chain at a time: docs/cpu_rasterizer.md).
 template <int Q> void sum_planes(const float *__restrict__ s, int64_t n, double *out) {
     double t[Q] = {};
     for (int64_t i = 0; i < n; ++i)
@@ -194,8 +192,8 @@ template <int Q> void sum_planes(const float *__restrict__ s, int64_t n, double 
 constexpr int64_t kSumPlanes = 4;  // planes per task of sum_planes
 
 // Output rows per task.  The backward filters its first K - 1 rows along W again at each task's start
-// (they are the last rows of the task above); 64 rows with the ring of rows took the 1008x756 RGB SSIM
-// 0.5-1.2 ms less forward + backward than 32 rows without it (Zen 3, 2 threads).
+// (they are the last rows of the task above): taller tasks repeat that work less often (64 against 32
+// rows: docs/cpu_rasterizer.md).
 constexpr int64_t ROWS = 64;
 
 struct Dims {

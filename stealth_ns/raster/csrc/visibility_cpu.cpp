@@ -2,9 +2,8 @@
 //
 // The readable reference with the same contract is stealth_ns/attack/visibility.py's
 // `count_seeing_cameras_reference` (a dozen full-size torch operations per camera). The injection's
-// ray search asks it for every sample of every illusion ray against every innocent camera (1.5M
-// samples x 100 cameras on the generated object scene: 2.25 s in torch; 52M samples x 20 cameras on
-// the 1-MP facing scene: a 49.7 s injection). Here each point visits every camera once, and reads one
+// ray search asks it for every sample of every illusion ray against every innocent camera (sizes and
+// torch timings: docs/cpu_rasterizer.md). Here each point visits every camera once, and reads one
 // map of depth bounds per camera (made once per injection by CameraDepths.depth_bounds: depth *
 // (1 + margin) where the pixel shows a surface, +inf elsewhere; the maps of a 1-MP capture do not
 // stay in cache, so one read per lookup instead of a depth and an opacity read).
@@ -29,7 +28,7 @@ namespace stealth_ns {
 
 namespace {
 
-constexpr int64_t BLOCK = 256;  // points per task block (4096 and 65536 measured the same at 1 MP)
+constexpr int64_t BLOCK = 256;  // points per task block (larger blocks gain nothing: docs/cpu_rasterizer.md)
 
 }  // namespace
 
