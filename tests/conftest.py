@@ -89,6 +89,19 @@ def tiny_run_pair(tiny_orbit_scene, tmp_path_factory) -> tuple[Path, Path]:
     return tiny_config(out, "poisoned"), tiny_config(out, "clean")
 
 
+@pytest.fixture(scope="session")
+def tiny_poisoned_run(tiny_orbit_scene, tmp_path_factory) -> Path:
+    """config.yml of a poisoned run of ``tiny_orbit_scene`` trained long enough (300 steps) for its
+    illusion to show: the scan names its poisoned view."""
+
+    def build(out: Path) -> None:
+        train_tiny(
+            tiny_orbit_scene, out, "poisoned", "--pipeline.attack.injection-step", "20", iterations=300
+        )
+
+    return tiny_config(built_once(tmp_path_factory, "poisoned-300", build), "poisoned")
+
+
 #: Files in the report folder before ``tiny_report`` runs: pictures of an earlier report (removed) and
 #: the user's own files (kept).
 STALE_REPORT_FILES = ("images/view9999_target.png", "images/heldout999_gt.png")

@@ -29,7 +29,8 @@ from stealth_ns.datasets.source import SceneSource, inspect_folder
 from stealth_ns.defences.scores import frustum_depth_ratios
 from stealth_ns.defences.signals import camera_matrices
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.gaussians.ply import GaussianCloud, read_gaussian_ply
+from stealth_ns.gaussians.model_files import is_model_file, model_format, read_model_file
+from stealth_ns.gaussians.ply import GaussianCloud
 from stealth_ns.gaussians.transform import transform_cloud
 from stealth_ns.images.io import rgb_float
 from stealth_ns.images.metrics import psnr
@@ -39,6 +40,7 @@ from stealth_ns.method.model_cloud import LOADED_STEP, cloud_of_model, cloud_of_
 from stealth_ns.method.render_view import render_camera
 from stealth_ns.poisoned_datasets.dataset_copy import SourceDataset
 from stealth_ns.runs.loaded import LoadedRun, load_run
+from stealth_ns.runs.official_output import is_official_output, load_official_output
 from stealth_ns.runs.paths import run_file
 
 #: The method whose model and pipeline hold an imported model (its renderer, its fine-tune rates).
@@ -70,15 +72,20 @@ def load_model(model: Path, data: Path | None = None, frame: str = "auto") -> Im
     model = Path(model)
     if frame not in ("auto", *FRAMES):
         raise StealthNSError(f"--frame must be auto or one of {', '.join(FRAMES)}, got {frame!r}")
-    if model.suffix.lower() == ".ply":
+    if is_official_output(model):  # an official 3DGS output folder: stealth_ns.runs.official_output
+        return load_official_output(model, data, frame, load_model)
+    if is_model_file(model):
         if data is None:
             raise StealthNSError(
-                f"--data is needed with a PLY ({model}): the dataset whose cameras it was trained on"
+                f"--data is needed with a PLY, .splat or .spz model ({model}): the dataset whose cameras "
+                "it was trained on"
             )
         return _load_ply(model, data, frame)
     config_path = run_file(model)
     if not config_path.is_file():
-        raise StealthNSError(f"{model} is neither a PLY file nor a run (no config.yml)")
+        raise StealthNSError(
+            f"{model} is neither a PLY file nor a run (no config.yml; a model file is .ply, .splat or .spz)"
+        )
     from stealth_ns.method.safe_config import load_config
 
     config = load_config(config_path)
@@ -121,7 +128,7 @@ def host_run(config: Any, label: Path, checkpoint: Path | None = None) -> Loaded
 
 
 def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
-    cloud = read_gaussian_ply(path)
+    cloud = read_model_file(path)
     scene = inspect_folder("--data", str(data))
     run = host_run(host_config(scene), path)
     transforms = frame_transforms(run.pipeline.datamanager.train_dataparser_outputs, scene)
@@ -138,16 +145,27 @@ def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
         match[name] = frame_match(run)
     usable = {k: v for k, v in match.items() if v["in_view"] >= MIN_IN_VIEW}
     if not usable:
-        best = max(match, key=lambda k: match[k]["in_view"])
         raise StealthNSError(
-            f"{path} does not match the cameras of {data}: in the best frame tried ({best}) only "
-            f"{match[best]['in_view']:.0%} of its Gaussians sit inside a training view (the model was "
-            "trained on another dataset, or in a frame stealth-ns does not know: docs/scan.md)"
+            f"{path} does not match the cameras of {data}: in no frame tried do at least "
+            f"{MIN_IN_VIEW:.0%} of its Gaussians sit inside a training view: {describe_matches(match)}; "
+            f"a flat image of each photo's mean colour scores {next(iter(match.values()))['flat_psnr']:.1f} "
+            "dB (the render-match floor at --render-match-floor 0): the model was trained on another "
+            "dataset, or in a frame stealth-ns does not know (docs/scan.md)"
         )
     chosen = max(usable, key=lambda k: usable[k]["psnr"])
     if chosen != list(candidates)[-1]:
         load_cloud(run.model, transform_cloud(cloud, candidates[chosen]))
-    return ImportedModel(run, "ply", cloud, chosen, match if frame == "auto" else {})
+    return ImportedModel(run, model_format(path), cloud, chosen, match if frame == "auto" else {})
+
+
+def describe_matches(match: dict[str, dict[str, float]]) -> str:
+    """Each frame of ``match`` (:func:`frame_match`'s, by frame) with its render match and share of
+    Gaussians in view, in one line: ``nerfstudio (render match 13.4 dB, 81% of the Gaussians in view),
+    ...``."""
+    return ", ".join(
+        f"{name} (render match {m['psnr']:.1f} dB, {m['in_view']:.0%} of the Gaussians in view)"
+        for name, m in match.items()
+    )
 
 
 @torch.no_grad()

@@ -9,6 +9,7 @@ from typing import Any
 from stealth_ns.attack.record import AttackRecord, PoisonView
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.fingerprint import fingerprint_differences, same_points
+from stealth_ns.gaussians.model_files import is_model_file
 from stealth_ns.runs.imported import load_model
 from stealth_ns.runs.loaded import LoadedRun, attack_record, load_run
 
@@ -81,9 +82,9 @@ class RunPair:
 
 
 def _load(path: Path, data: Path | None) -> LoadedRun:
-    """A run as :func:`load_run` loads it; a PLY, or a run given with its dataset, as
-    :func:`~stealth_ns.runs.imported.load_model` does."""
-    if data is None and Path(path).suffix.lower() != ".ply":
+    """A run as :func:`load_run` loads it; a model file (PLY, .splat, .spz), or a run given with its
+    dataset, as :func:`~stealth_ns.runs.imported.load_model` does."""
+    if data is None and not is_model_file(Path(path)):
         return load_run(path)
     return load_model(Path(path), None if data is None else Path(data)).run
 

@@ -47,8 +47,10 @@ class ScanConfig:
     attack's at least 1.65 %; at 0.5 % innocent views were named beside the poisoned one (their regions
     0.53 % and more), at 2 % a successful support-views attack was missed."""
     frame: str = "auto"
-    """World frame of a PLY: auto (each known frame tried, the best-matching kept), nerfstudio
-    (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat --keep-crs) or colmap
+    """World frame of a PLY, one of auto (each frame below tried, the best-matching kept), nerfstudio
+    (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat without --center, gsplat
+    --no-normalize-world-space), colmap (the COLMAP model a nerfstudio-data folder was converted from),
+    opensplat-center (OpenSplat --center) or gsplat-normalized (gsplat simple_trainer's default)
     (docs/scan.md)."""
     render_match_floor: float = 0.0
     """dB by which the model's renders of three training views must match their photos better than a

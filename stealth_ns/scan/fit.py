@@ -13,7 +13,7 @@ Below ``ScanConfig.render_match_floor`` dB above it, in every frame tried, the s
 from __future__ import annotations
 
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.runs.imported import ImportedModel, frame_match
+from stealth_ns.runs.imported import ImportedModel, describe_matches, frame_match
 
 
 def render_matches(imported: ImportedModel) -> dict[str, dict[str, float]]:
@@ -30,14 +30,11 @@ def check_fit(imported: ImportedModel, floor: float) -> float:
     chosen = matches[imported.frame]
     gain = chosen["psnr"] - chosen["flat_psnr"]
     if gain < floor:
-        tried = ", ".join(
-            f"{name} (render match {m['psnr']:.1f} dB, {m['in_view']:.0%} of the Gaussians in view)"
-            for name, m in matches.items()
-        )
         raise StealthNSError(
             f"the model {imported.run.config_path} fits none of the frames tried on the cameras of "
-            f"{imported.run.data}: {tried}; the floor is {chosen['flat_psnr'] + floor:.1f} dB, "
-            f"{floor:g} dB above a flat image of each photo's mean colour (--render-match-floor, "
-            "docs/scan.md): the model was trained on another scene, or in a frame the scan does not know"
+            f"{imported.run.data}: {describe_matches(matches)}; the floor is "
+            f"{chosen['flat_psnr'] + floor:.1f} dB, {floor:g} dB above a flat image of each photo's mean "
+            "colour (--render-match-floor, docs/scan.md): the model was trained on another scene, or in a "
+            "frame the scan does not know"
         )
     return gain

@@ -2,11 +2,14 @@
 
 * ``scan.json``: the verdict, the targeted views (region share, pixels, box, Gaussians), every
   rendered group, each signal's rule and count, the model (kind, frame and how each frame matched),
-  timings; and, when the model carries stealth-ns's poison tag (our runs, their ``ns-export`` PLYs),
-  how the scan compares with it (``ground_truth``: never used by the verdict);
+  which steps read the photos and which the cameras alone (``photos``), timings; and, when the model
+  carries stealth-ns's poison tag (our runs, their ``ns-export`` PLYs), how the scan compares with it
+  (``ground_truth``: never used by the verdict);
 * ``images/VIEW_{full,without,flagged,effect}.png`` per targeted view, and ``scan.html``;
-* the cleaned model without the targeted groups: ``cleaned.ply`` in the input's own frame (every
-  input), and for a nerfstudio run also ``cleaned/`` (a nerfstudio run: ``ns-eval``, ``ns-viewer``);
+* the cleaned model without the targeted groups, in the input's own frame: in the format of an input
+  model file (``cleaned.ply``, ``cleaned.compressed.ply``, ``cleaned.splat``, ``cleaned.spz``),
+  ``cleaned.ply`` for a run or an official 3DGS output; and for a nerfstudio run also ``cleaned/`` (a
+  nerfstudio run: ``ns-eval``, ``ns-viewer``);
 * ``.stealth-ns-scan.json``: the record of every file written, with its hash. A later scan into the
   same folder replaces those files (unchanged ones only) and refuses to write over any other, through
   a symbolic link, or over its own input (:func:`~stealth_ns.foundation.output_folder.claim_output`).
@@ -29,6 +32,7 @@ from stealth_ns.foundation.html_page import render_page
 from stealth_ns.foundation.json_io import atomic_path, json_safe, write_json_atomic, write_text_atomic
 from stealth_ns.foundation.output_folder import claim_output, record_output, remove_tree, unfinished
 from stealth_ns.foundation.provenance import software_and_hardware
+from stealth_ns.gaussians.model_files import is_model_file, write_model_file
 from stealth_ns.gaussians.ply import write_gaussian_ply
 from stealth_ns.images.io import save_png
 from stealth_ns.scan.arguments import (
@@ -39,9 +43,11 @@ from stealth_ns.scan.arguments import (
     RECORD,
     SCAN_FILE,
     WRITTEN_BY,
+    cleaned_model_name,
     model_input,
     output_plan,
 )
+from stealth_ns.scan.photos import photo_record
 from stealth_ns.scan.scanner import Group, ScanResult
 
 IMAGES = ("full", "without", "flagged", "effect")
@@ -112,6 +118,7 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
             "render_match_above_flat": round(result.render_match, 2),
         },
         "data": str(data),
+        "photos": photo_record(result.photos, cfg.signals),
         "training_views": len(result.model.run.pipeline.datamanager.train_dataset),
         "signals": {
             n: {"rule": s.rule, "flagged": int(s.pruned.sum()), "seconds": s.seconds}
@@ -142,13 +149,20 @@ def write_images(result: ScanResult, output: Path) -> dict[str, dict[str, str]]:
     return files
 
 
-def write_cleaned(result: ScanResult, output: Path) -> dict[str, str]:
-    """The model without the targeted groups: cleaned.ply, and a nerfstudio run for a run input."""
+def write_cleaned(result: ScanResult, output: Path, model_path: Path) -> dict[str, str]:
+    """The model without the targeted groups, in the format of the model file ``model_path``
+    (:func:`~stealth_ns.scan.arguments.cleaned_model_name`; cleaned.ply for a run or an official
+    output), and a nerfstudio run for a run input."""
     keep = ~result.removed
     imported = result.model
-    written = {"ply": CLEANED_PLY}
-    with atomic_path(output / CLEANED_PLY) as tmp:
-        write_gaussian_ply(tmp, imported.cloud.subset(keep), comment="stealth-ns scan: cleaned")
+    name = cleaned_model_name(model_path)
+    written = {"ply": name}
+    cleaned, comment = imported.cloud.subset(keep), "stealth-ns scan: cleaned"
+    with atomic_path(output / name) as tmp:
+        if is_model_file(model_path):
+            write_model_file(tmp, cleaned, like=Path(model_path), comment=comment)
+        else:
+            write_gaussian_ply(tmp, cleaned, comment=comment)
     checkpoint = imported.run.checkpoint
     if checkpoint is not None:
         info = {
@@ -181,7 +195,7 @@ def write_outputs(result: ScanResult, output: Path, model_path: Path, data: Path
     doc = scan_document(result, model_path, data)
     try:
         doc["images"] = write_images(result, output)
-        doc["cleaned"] = write_cleaned(result, output)
+        doc["cleaned"] = write_cleaned(result, output, model_path)
         write_json_atomic(output / SCAN_FILE, json_safe(doc))  # scan.json and scan.html last
         write_text_atomic(output / HTML_FILE, render_html(doc))
     except (OSError, StealthNSError) as err:

@@ -23,11 +23,13 @@ import torch
 
 from stealth_ns.attack.injection import median_scene_depth
 from stealth_ns.defences.posthoc import DefenceInputs, Scored, final_learning_rates, score
+from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.method.datamanager import dataset_image_names
 from stealth_ns.method.render_view import render_camera
 from stealth_ns.runs.imported import ImportedModel
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.fit import check_fit
+from stealth_ns.scan.photos import PhotoUse, photo_signals_refused
 from stealth_ns.scan.verdict import Region, RenderedView, effect_mask, groups_by_view, largest_region
 
 
@@ -60,7 +62,8 @@ class ScanResult:
     seconds: dict[str, float]
     render_match: float = float("nan")
     """dB above a flat image of each photo's mean colour: the model's training views rendered against
-    their photos (:mod:`stealth_ns.scan.fit`)."""
+    their photos (:mod:`stealth_ns.scan.fit`); NaN without photos."""
+    photos: PhotoUse = field(default_factory=PhotoUse)
 
     @property
     def targeted(self) -> list[Group]:
@@ -97,22 +100,43 @@ def _group_effect(model: Any, camera: Any, members: np.ndarray, cfg: ScanConfig)
     return region, {"full": full.rgb, "without": rest.rgb, "flagged": group.rgb, "effect": region.mask}
 
 
-def scan_model(
-    imported: ImportedModel, cfg: ScanConfig, echo: Callable[[str], None] = lambda line: None
-) -> ScanResult:
-    """Score, flag, group and judge the Gaussians of ``imported`` (nothing written); a one-line
-    StealthNSError for a model that does not sit on its dataset's cameras (:func:`check_fit`)."""
-    cfg.validate()
+def _render_match(
+    imported: ImportedModel, cfg: ScanConfig, photos: PhotoUse, echo: Callable[[str], None]
+) -> float:
+    """:func:`check_fit`'s render match with photos; NaN, the step skipped, without."""
+    if not photos.used:
+        refused = photo_signals_refused(photos, cfg.signals)
+        if refused:
+            raise StealthNSError(refused)
+        echo("  render match: skipped (no photos): the model is judged on its cameras alone")
+        return float("nan")
     render_match = check_fit(imported, cfg.render_match_floor)
     echo(
         f"  render match: {render_match:+.1f} dB against a flat image of each photo's mean colour "
         f"(floor {cfg.render_match_floor:+g} dB)"
     )
+    return render_match
+
+
+def scan_model(
+    imported: ImportedModel,
+    cfg: ScanConfig,
+    echo: Callable[[str], None] = lambda line: None,
+    photos: PhotoUse | None = None,
+) -> ScanResult:
+    """Score, flag, group and judge the Gaussians of ``imported`` (nothing written); a one-line
+    StealthNSError for a model that does not sit on its dataset's cameras (:func:`check_fit`).
+    ``photos`` says whether the dataset's images are photos (the default) or placeholders: without
+    photos the steps that compare with them are skipped (:mod:`stealth_ns.scan.photos`) and the
+    images are never read."""
+    cfg.validate()
+    photos = photos or PhotoUse()
+    render_match = _render_match(imported, cfg, photos, echo)
     run = imported.run
     model, dm = run.model, run.pipeline.datamanager
     cameras = dm.train_dataset.cameras
     names = dataset_image_names(run.data, dm.train_dataparser_outputs.image_filenames)
-    images = [dm.cached_train[i]["image"] for i in range(len(dm.train_dataset))]
+    images = [dm.cached_train[i]["image"] for i in range(len(dm.train_dataset))] if photos.used else []
     inputs = DefenceInputs(model, cameras, images, final_learning_rates(run.config.optimizers))
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -133,4 +157,4 @@ def scan_model(
         groups.append(Group(view, names[view], members, region, targeted, renders if targeted else {}))
     groups.sort(key=lambda g: (-g.region.share, g.view))
     seconds["groups"] = round(time.perf_counter() - t0, 2)
-    return ScanResult(imported, cfg, scored, flagged, groups, seconds, render_match)
+    return ScanResult(imported, cfg, scored, flagged, groups, seconds, render_match, photos)

@@ -141,12 +141,9 @@ def test_a_dataset_frame_point_projects_where_the_dataset_says(tiny_orbit_scene)
 
 # ------------------------------------------------------------------ the scan on tiny runs
 @pytest.fixture(scope="module")
-def poisoned_run(tiny_orbit_scene, tmp_path_factory) -> Path:
+def poisoned_run(tiny_poisoned_run) -> Path:
     """A poisoned run of the tiny scene trained long enough (300 steps) for its illusion to show."""
-    out = tmp_path_factory.mktemp("scan_runs")
-    return train_tiny(
-        tiny_orbit_scene, out, "poisoned", "--pipeline.attack.injection-step", "20", iterations=300
-    )
+    return tiny_poisoned_run
 
 
 def _scan(model: Path, out: Path, data: Path | None = None) -> dict:
