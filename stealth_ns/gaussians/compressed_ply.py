@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.gaussians.ply import GaussianCloud, _check_finite
+from stealth_ns.gaussians.ply import GaussianCloud, _check_finite, open_ply
 from stealth_ns.gaussians.quantisation import (
     code_of,
     colour_of_dc,
@@ -88,15 +88,8 @@ def read_compressed_ply(path: Path) -> GaussianCloud:
     """Read a compressed PLY. StealthNSError with one line when the file is missing or not a PLY, lacks
     the ``chunk`` or ``vertex`` element or one of their properties, has a chunk count that does not fit
     its Gaussians, an ``sh`` element of no SH degree 1-3 or of another length, or a NaN/infinite value."""
-    from plyfile import PlyData
-
     path = Path(path)
-    if not path.is_file():
-        raise StealthNSError(f"no compressed PLY file at {path}")
-    try:
-        ply = PlyData.read(str(path))
-    except Exception as err:  # plyfile raises PlyParseError, ValueError, struct errors, EOFError...
-        raise StealthNSError(f"{path} is not a readable PLY file ({type(err).__name__}: {err})") from None
+    ply = open_ply(path, "compressed PLY")
     elements = {e.name: e for e in ply.elements}
     for name in ("chunk", "vertex"):
         if name not in elements:

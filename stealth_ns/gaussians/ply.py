@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -80,19 +81,25 @@ class GaussianCloud:
         )
 
 
+def open_ply(path: Path, what: str) -> Any:
+    """``path`` parsed by plyfile (a ``PlyData``); StealthNSError with one line when it is missing
+    (``no WHAT file at PATH``) or not a readable PLY."""
+    from plyfile import PlyData
+
+    if not path.is_file():
+        raise StealthNSError(f"no {what} file at {path}")
+    try:
+        return PlyData.read(str(path))
+    except Exception as err:  # plyfile raises PlyParseError, ValueError, struct errors, EOFError...
+        raise StealthNSError(f"{path} is not a readable PLY file ({type(err).__name__}: {err})") from None
+
+
 def read_gaussian_ply(path: Path) -> GaussianCloud:
     """Read a 3DGS PLY (binary either endianness, or ASCII). StealthNSError with one line when the file
     is missing or not a PLY, has no ``vertex`` element, lacks a property of :data:`REQUIRED`, has an
     ``f_rest_*`` count of no SH degree 0-3, has no Gaussians, or has a row with a NaN/inf value."""
-    from plyfile import PlyData
-
     path = Path(path)
-    if not path.is_file():
-        raise StealthNSError(f"no PLY file at {path}")
-    try:
-        ply = PlyData.read(str(path))
-    except Exception as err:  # plyfile raises PlyParseError, ValueError, struct errors, EOFError...
-        raise StealthNSError(f"{path} is not a readable PLY file ({type(err).__name__}: {err})") from None
+    ply = open_ply(path, "PLY")
     if "vertex" not in [e.name for e in ply.elements]:
         raise StealthNSError(f"{path} has no 'vertex' element: not a point or Gaussian PLY")
     vertex = ply["vertex"]
