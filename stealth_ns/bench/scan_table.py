@@ -29,7 +29,7 @@ from stealth_ns.bench.scan_runs import (
     inputs_of,
     output_plan,
 )
-from stealth_ns.datasets.frames import frame_transforms
+from stealth_ns.datasets.frames import dataset_to_nerfstudio
 from stealth_ns.datasets.source import inspect_folder
 from stealth_ns.defence_eval.evaluate import Evaluator, defeat_metrics, target_of
 from stealth_ns.defences.detection import detection_metrics
@@ -49,7 +49,7 @@ def as_foreign_ply(imported: ImportedModel, path: Path) -> Path:
     own frame, without the poison tag. Returns ``path``."""
     run = imported.run
     scene = inspect_folder("--data", str(run.data))
-    to_ns = frame_transforms(run.pipeline.datamanager.train_dataparser_outputs, scene)["dataset"]
+    to_ns = dataset_to_nerfstudio(run.pipeline.datamanager.train_dataparser_outputs, scene)
     cloud = transform_cloud(imported.cloud, np.linalg.inv(to_ns))
     cloud.extra = {}
     path.parent.mkdir(parents=True, exist_ok=True)

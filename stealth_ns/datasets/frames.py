@@ -69,23 +69,25 @@ def applied_transform(scene: SceneSource) -> np.ndarray | None:
 def dataset_to_nerfstudio(outputs: Any, scene: SceneSource) -> np.ndarray:
     """``[4, 4]`` similarity taking a point of the dataset frame (its poses' and seed points') into
     nerfstudio's, for the dataparser ``outputs`` of ``scene``."""
-    return _dataset_frames(outputs, scene)["dataset"]
+    return _dataset_frames(outputs, applied_transform(scene))["dataset"]
 
 
 def frame_transforms(outputs: Any, scene: SceneSource) -> dict[str, np.ndarray]:
     """Each frame of :data:`FRAMES` the dataset has -> the ``[4, 4]`` similarity taking its points into
     nerfstudio's frame (``nerfstudio``: the identity; ``colmap`` only with an ``applied_transform``;
     the trainer frames as :func:`trainer_frame_transforms` finds them)."""
-    out = _dataset_frames(outputs, scene)
-    out.update(trainer_frame_transforms(scene, out, applied_transform(scene)))
+    applied = applied_transform(scene)
+    out = _dataset_frames(outputs, applied)
+    out.update(trainer_frame_transforms(scene, out, applied))
     return out
 
 
-def _dataset_frames(outputs: Any, scene: SceneSource) -> dict[str, np.ndarray]:
+def _dataset_frames(outputs: Any, applied: np.ndarray | None) -> dict[str, np.ndarray]:
+    """``nerfstudio``, ``dataset`` and (with an ``applied_transform``) ``colmap`` -> their ``[4, 4]``
+    similarity into nerfstudio's frame."""
     m = np.vstack([np.asarray(outputs.dataparser_transform, dtype=np.float64), [0, 0, 0, 1]])
     scale = np.diag([float(outputs.dataparser_scale)] * 3 + [1.0])
     out = {"nerfstudio": np.eye(4)}
-    applied = applied_transform(scene)
     if applied is None:
         out["dataset"] = scale @ m
     else:

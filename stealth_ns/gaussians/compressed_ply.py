@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.gaussians.ply import GaussianCloud, _check_finite, open_ply
+from stealth_ns.gaussians.ply import GaussianCloud, check_finite, open_ply
 from stealth_ns.gaussians.quantisation import (
     code_of,
     colour_of_dc,
@@ -110,7 +110,7 @@ def read_compressed_ply(path: Path) -> GaussianCloud:
         )
     sh_rest = _sh_rest(path, elements["sh"].data if "sh" in elements else None, n)
     cloud = _decoded(chunk, packed, with_colours, sh_rest)
-    _check_finite(path, cloud)
+    check_finite(path, cloud)
     return cloud
 
 

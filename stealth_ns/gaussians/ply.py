@@ -125,7 +125,7 @@ def read_gaussian_ply(path: Path) -> GaussianCloud:
     if n == 0:
         raise StealthNSError(f"{path} holds no Gaussians (element vertex 0)")
     cloud = _cloud_of(vertex.data, degree, names)
-    _check_finite(path, cloud)
+    check_finite(path, cloud)
     return cloud
 
 
@@ -152,7 +152,8 @@ def _cloud_of(data: np.ndarray, degree: int, names: set[str]) -> GaussianCloud:
     )
 
 
-def _check_finite(path: Path, cloud: GaussianCloud) -> None:
+def check_finite(path: Path, cloud: GaussianCloud) -> None:
+    """StealthNSError naming ``path`` and the first rows with a NaN or infinite value (every reader)."""
     arrays = (cloud.means, cloud.log_scales, cloud.quats, cloud.opacity_logits, cloud.sh_dc, cloud.sh_rest)
     ok = np.ones(len(cloud), dtype=bool)
     for a in arrays:

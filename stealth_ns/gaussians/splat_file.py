@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.gaussians.ply import GaussianCloud, _check_finite
+from stealth_ns.gaussians.ply import GaussianCloud, check_finite
 from stealth_ns.gaussians.quantisation import (
     code_of,
     colour_of_dc,
@@ -69,7 +69,7 @@ def read_splat(path: Path) -> GaussianCloud:
         sh_dc=dc_of_colour(rgba[:, :3] / 255).astype(np.float32),
         sh_rest=np.zeros((len(rows), 0, 3), np.float32),
     )
-    _check_finite(path, cloud)
+    check_finite(path, cloud)
     return cloud
 
 

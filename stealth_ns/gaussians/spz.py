@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.gaussians.ply import GaussianCloud, _check_finite
+from stealth_ns.gaussians.ply import GaussianCloud, check_finite
 from stealth_ns.gaussians.quantisation import (
     opacity_codes,
     opacity_logits,
@@ -93,7 +93,7 @@ def read_spz(path: Path) -> GaussianCloud:
         raise StealthNSError(f"{path}: SH degree {degree} is not supported (stealth-ns reads degrees 0-3)")
     sections = _sections(path, payload, version, n, (degree + 1) ** 2 - 1)
     cloud = _decoded(sections, version, fractional_bits)
-    _check_finite(path, cloud)
+    check_finite(path, cloud)
     return cloud
 
 

@@ -40,15 +40,13 @@ from stealth_ns.method.model_cloud import LOADED_STEP, cloud_of_model, cloud_of_
 from stealth_ns.method.render_view import render_camera
 from stealth_ns.poisoned_datasets.dataset_copy import SourceDataset
 from stealth_ns.runs.loaded import LoadedRun, load_run
-from stealth_ns.runs.official_output import is_official_output, load_official_output
+from stealth_ns.runs.official_output import MIN_IN_VIEW, is_official_output, load_official_output
 from stealth_ns.runs.paths import run_file
 
 #: The method whose model and pipeline hold an imported model (its renderer, its fine-tune rates).
 HOST_METHOD = "stealth-splat-lite"
 #: Training views rendered to tell the frames apart (evenly spaced).
 FRAME_TEST_VIEWS = 3
-#: Least share of the Gaussians that must sit in front of some training camera, inside its image.
-MIN_IN_VIEW = 0.5
 
 
 @dataclass

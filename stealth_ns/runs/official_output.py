@@ -40,7 +40,8 @@ __all__ = ["is_official_output", "load_official_output", "load_on_cameras", "off
 
 LoadModel = Callable[[Path, Path, str], Any]
 """``load_model(ply, dataset, frame) -> ImportedModel``."""
-#: Least share of the Gaussians inside some training view (``load_model`` refuses a PLY below it).
+#: Least share of the Gaussians that must sit in front of some training camera, inside its image:
+#: ``load_model`` refuses a PLY below it, and so does a scan on an official output's cameras alone.
 MIN_IN_VIEW = 0.5
 
 
