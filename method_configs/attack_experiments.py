@@ -41,6 +41,12 @@ PRESETS: tuple[str, ...] = ("orbit", "forward", "facing")
 #: Dataset folders with a declared place in the tables, and where the default ``--scenes`` looks
 #: for them (relative to the current directory).
 FOLDERS: dict[str, str] = {"fox": "../shared/data/fox"}
+#: The phone captures at their own resolution (``../shared/data/captures``, COLMAP ``sparse/0``):
+#: ``--scenes captures`` names all three, ``--scenes beer`` one. Not in the default list: a run on
+#: them takes 2-8 minutes on a 2-core CPU where a generated scene takes one or two.
+CAPTURES: dict[str, str] = {name: f"../shared/data/captures/{name}" for name in ("beer", "bird", "cup")}
+#: ``--scenes`` words that stand for several dataset folders.
+FOLDER_GROUPS: dict[str, dict[str, str]] = {"captures": CAPTURES}
 #: The declared scenes, in column order.
 SCENES: tuple[str, ...] = (*PRESETS, *FOLDERS)
 #: The default of ``--scenes``: every preset and every declared folder (skipped when absent).

@@ -199,8 +199,10 @@ class BenchAttack:
     """Generated presets (orbit: 360°, Mip-NeRF 360-like; forward: free trajectory, Free-like;
     facing: forward-facing, LLFF-like) and dataset folders as NAME=PATH (nerfstudio-data, COLMAP
     sparse/0 + images, or Blender; used in place, never written; seed points triangulated into
-    OUTPUT/scenes/NAME when the dataset has none). Folders join Tables 1-2 with their KDE views. A
-    folder of this default that is absent is skipped with a note; one you name is required."""
+    OUTPUT/scenes/NAME when the dataset has none). captures: the phone captures beer, bird and cup of
+    ../shared/data/captures at their own resolution (or one of them by name). Folders join Tables 1-2
+    with their KDE views. A folder of this default that is absent is skipped with a note; one you
+    name is required."""
     iterations: int | None = None
     """Training iterations of every run (default: the method's, 3000 for stealth-splat-lite)."""
     method: str = "stealth-splat-lite"
@@ -366,15 +368,19 @@ class BenchScan:
     as_ply: bool = False
     """Scan each run as another trainer's model: written as a 3DGS PLY in its dataset's own frame,
     without the poison tag (OUTPUT/plys/), then scanned with --frame auto."""
+    fit_first: tuple[str, ...] = ()
+    """Scenes on which the held-out calibration first chooses the region threshold (judged on the
+    other scenes, then the halves swap). Default: every other scene, in the order of results.json."""
     options: Annotated[ScanConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=ScanConfig)
 
     def main(self) -> None:
-        from stealth_ns.bench.scan_runs import check_arguments
+        from stealth_ns.bench.scan_runs import check_arguments, check_scenes
 
-        check_arguments(self.runs, self.output, self.options, self.only, self.as_ply)  # before torch loads
+        runs = check_arguments(self.runs, self.output, self.options, self.only, self.as_ply)  # before torch
+        check_scenes(runs, self.fit_first, "--fit-first")
         from stealth_ns.bench.scan_table import TABLE_FILE, run_bench_scan
 
-        run_bench_scan(self.runs, self.output, self.options, self.only, self.as_ply)
+        run_bench_scan(self.runs, self.output, self.options, self.only, self.as_ply, self.fit_first)
         print((self.output / TABLE_FILE).read_text(encoding="utf-8"))
 
 

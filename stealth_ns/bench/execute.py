@@ -22,6 +22,7 @@ from stealth_ns.foundation.json_io import json_safe, write_json_atomic
 from stealth_ns.method_configs.attack_experiments import (
     clean_run,
 )
+from stealth_ns.runs.step_log import median_step_ms
 from stealth_ns.runs.training import (
     TRAIN_LOG,
     TrainRecord,
@@ -171,6 +172,8 @@ class _Bench:
             train_seconds=record.seconds,
             trained_at=record.finished_at,
             iterations=record.iterations,
+            peak_rss_mb=record.peak_rss_mb,
+            median_step_ms=median_step_ms(p.spec.run_dir),
             log=str(p.spec.run_dir / TRAIN_LOG),
         )
         verb = "trained" if record.trained_now else "reused"

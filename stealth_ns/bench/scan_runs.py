@@ -109,3 +109,13 @@ def check_arguments(
     files, folders = output_plan(as_ply)
     check_output_plan(output, RECORD, files, folders, inputs_of(bench_output, runs))
     return runs
+
+
+def check_scenes(runs: list[dict[str, Any]], scenes: tuple[str, ...], option: str) -> None:
+    """One-line StealthNSError for a scene of ``option`` that no run to scan belongs to."""
+    known = list(dict.fromkeys(r["scene"] for r in runs))
+    unknown = [s for s in scenes if s not in known]
+    if unknown:
+        raise StealthNSError(
+            f"{option}: no run of scene {', '.join(unknown)} to scan; scenes: {', '.join(known)}"
+        )

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.attack.record import AttackRecord
+from stealth_ns.bench.scan_calibration import calibration_lines, held_out
 from stealth_ns.bench.scan_runs import (
     PLYS_DIR,
     RECORD,
@@ -93,6 +94,10 @@ def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> d
         "right": right,
         "views_found": len(named_views & poisoned),
         "largest_region": result.groups[0].region.share if result.groups else 0.0,
+        "groups": [
+            {"view": g.name, "index": g.view, "share": round(g.region.share, 6)} for g in result.groups
+        ],
+        "tampered": sorted(tampered),
         "gaussians": int(result.flagged.shape[0]),
         "ground_truth": ground_truth(result),
         "frame": imported.frame,
@@ -142,8 +147,11 @@ def _support(row: dict[str, Any]) -> str:
     return f" (support: {', '.join(support)})" if support else ""
 
 
-def table_lines(rows: list[dict[str, Any]], cfg: ScanConfig) -> list[str]:
-    """scan.md: the rule, the confusion table, the ROC's AUROC and every run's row."""
+def table_lines(
+    rows: list[dict[str, Any]], cfg: ScanConfig, calibration: dict[str, Any] | None = None
+) -> list[str]:
+    """scan.md: the rule, the confusion table, the ROC's AUROC, every run's row and (given) the
+    held-out calibration (:mod:`stealth_ns.bench.scan_calibration`)."""
     c = confusion(rows)
     scores = np.array([r["largest_region"] for r in rows if not r["attack_failed"]])
     labels = np.array([r["poisoned"] for r in rows if not r["attack_failed"]])
@@ -173,6 +181,8 @@ def table_lines(rows: list[dict[str, Any]], cfg: ScanConfig) -> list[str]:
             f"{100 * r['largest_region']:.2f}% | {'yes' if r['right'] else 'no'} | {_cleaned(r)} | "
             f"{r['seconds']:.0f} |"
         )
+    if calibration is not None:
+        lines += ["", *calibration_lines(calibration)]
     return lines
 
 
@@ -201,12 +211,18 @@ def plot_roc(path: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def run_bench_scan(
-    bench_output: Path, output: Path, cfg: ScanConfig, only: tuple[str, ...] = (), as_ply: bool = False
+    bench_output: Path,
+    output: Path,
+    cfg: ScanConfig,
+    only: tuple[str, ...] = (),
+    as_ply: bool = False,
+    first_half: tuple[str, ...] = (),
 ) -> list[dict]:
     """Scan every finished run of ``bench_output`` (or those whose key contains one of ``only``); write
     OUTPUT/scan-results.json, OUTPUT/scan.md and OUTPUT/roc.png (and the record of them,
     :data:`~stealth_ns.bench.scan_runs.RECORD`); returns the rows. ``as_ply``: scan each run as a
-    foreign PLY (:func:`as_foreign_ply`, written to OUTPUT/plys/) instead."""
+    foreign PLY (:func:`as_foreign_ply`, written to OUTPUT/plys/) instead. ``first_half``: the scenes
+    the held-out calibration fits on first (default: every other scene)."""
     runs = check_arguments(bench_output, output, cfg, only, as_ply)  # before anything slow or written
     files, folders = output_plan(as_ply)
     claim_output(output, RECORD, WRITTEN_BY, files, folders, inputs_of(bench_output, runs))
@@ -217,7 +233,10 @@ def run_bench_scan(
         rows.append(scan_run(run, cfg, ply))
         print(f"  {rows[-1]['verdict']} {rows[-1]['named_views']} (right: {rows[-1]['right']})", flush=True)
         write_json_atomic(output / RESULTS_FILE, json_safe({"config": vars(cfg), "rows": rows}))
-    write_text_atomic(output / TABLE_FILE, "\n".join(table_lines(rows, cfg)) + "\n")
+    calibration = held_out(rows, first_half)
+    doc = {"config": vars(cfg), "rows": rows, "calibration": calibration}
+    write_json_atomic(output / RESULTS_FILE, json_safe(doc))
+    write_text_atomic(output / TABLE_FILE, "\n".join(table_lines(rows, cfg, calibration)) + "\n")
     plot_roc(output / ROC_FILE, rows)
     record_output(output, RECORD, WRITTEN_BY, files, folders)
     return rows

@@ -15,7 +15,9 @@ from stealth_ns.datasets.source import SceneSource, inspect_folder
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import write_json_atomic
 from stealth_ns.method_configs.attack_experiments import (
+    CAPTURES,
     DEFAULT_SCENES,
+    FOLDER_GROUPS,
     FOLDERS,
     KDE_LEVELS,
     PRESETS,
@@ -30,7 +32,8 @@ def parse_scenes(values: Sequence[str] | None) -> tuple[tuple[SceneSource, ...],
     dataset folder of the default that is absent.
 
     Values are presets (``orbit``), ``all`` (the default list), a declared folder by its name
-    (``fox``: its default path) or ``NAME=PATH`` (a dataset folder; the path may hold commas and
+    (``fox``, ``beer``: its default path), ``captures`` (the phone captures, :data:`CAPTURES`) or
+    ``NAME=PATH`` (a dataset folder; the path may hold commas and
     spaces). A folder given explicitly must exist; one of the default list (or of ``all``) that
     does not is skipped. Bad specs raise :class:`StealthNSError`: unknown name, empty path, a
     name given twice, a folder named like a preset, a missing folder, an unknown dataset format.
@@ -42,6 +45,8 @@ def parse_scenes(values: Sequence[str] | None) -> tuple[tuple[SceneSource, ...],
         for item in [text] if "=" in text else text.replace(",", " ").split():
             if item.lower() == "all":
                 specs += [_scene_spec(v, optional=True) for v in DEFAULT_SCENES]
+            elif item.lower() in FOLDER_GROUPS:
+                specs += [(name, path, False) for name, path in FOLDER_GROUPS[item.lower()].items()]
             else:
                 specs.append(_scene_spec(item, optional=optional_default))
     if not specs:
@@ -74,7 +79,7 @@ def parse_scenes(values: Sequence[str] | None) -> tuple[tuple[SceneSource, ...],
 
 
 def _known_scenes() -> str:
-    return f"{' '.join(SCENES)}, or NAME=PATH for a dataset folder"
+    return f"{' '.join((*SCENES, *CAPTURES, *FOLDER_GROUPS))}, or NAME=PATH for a dataset folder"
 
 
 def _scene_spec(item: str, optional: bool) -> tuple[str, str | None, bool]:
@@ -84,6 +89,8 @@ def _scene_spec(item: str, optional: bool) -> tuple[str, str | None, bool]:
             return item, None, False
         if item in FOLDERS:
             return item, FOLDERS[item], optional
+        if item in CAPTURES:
+            return item, CAPTURES[item], False
         raise StealthNSError(f"unknown scene {item!r}; scenes: {_known_scenes()}")
     name, folder = (part.strip() for part in item.split("=", 1))
     if not _SCENE_NAME.fullmatch(name) or name.lower() == "all":

@@ -147,7 +147,7 @@ def render_table(data: dict[str, Any]) -> str:
 def _runs_table(runs: dict[str, dict[str, Any]]) -> str:
     header = [
         "Run", "Settings", "Poisoned view(s)", "V-illusory PSNR", "V-test PSNR (clean → poisoned)",
-        "Drop", "Success", "Gaussians (poison)", "Training", "This invocation",
+        "Drop", "Success", "Gaussians (poison)", "Training", "Median step", "Peak RSS", "This invocation",
     ]  # fmt: skip
     lines = ["## All runs", "", "| " + " | ".join(header) + " |", "|" + "|".join([":--"] * len(header)) + "|"]
     for key, e in runs.items():
@@ -169,7 +169,12 @@ def _runs_table(runs: dict[str, dict[str, Any]]) -> str:
         status = e.get("status", MISSING)
         if e.get("metrics_error"):
             status += " (metrics failed)"
-        lines.append("| " + " | ".join([key, e.get("label", ""), *cells, train_time, status]) + " |")
+        step, rss = e.get("median_step_ms"), e.get("peak_rss_mb")
+        cost = [
+            f"{step:.0f} ms" if isinstance(step, (int, float)) else MISSING,
+            f"{rss / 1024:.2f} GiB" if isinstance(rss, (int, float)) else MISSING,
+        ]
+        lines.append("| " + " | ".join([key, e.get("label", ""), *cells, train_time, *cost, status]) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -213,7 +218,8 @@ def stealth_table(runs: dict[str, dict[str, Any]]) -> str:
 
 
 def _scene_text(name: str, scene: dict[str, Any]) -> str:
-    size = "x".join(map(str, scene["resolution"])) if scene.get("resolution") else "?"
+    sizes = [scene["resolution"]] if scene.get("resolution") else scene.get("resolutions") or []
+    size = " / ".join("x".join(map(str, s)) for s in sizes) or "?"
     where = "" if scene.get("source", "preset") == "preset" else f"folder {scene.get('path')}, "
     return f"{name} ({where}{size}, {scene.get('views') or '?'} views)"
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from attack_helpers import build_pipeline
+from dataset_helpers import colmap_folder
 
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.cli import main
@@ -284,38 +285,9 @@ def test_camera_models_are_nerfstudios():
 
 
 # ---------------------------------------------------------------------------------- COLMAP
-def _colmap(scene: Path, out: Path, xyz=None) -> Path:
-    """The scene as a COLMAP folder (``images/``, ``sparse/0``) written by pycolmap, with ``xyz`` (default:
-    the scene's seed points) as points3D."""
-    import numpy as np
-    import pycolmap
-
-    from stealth_ns.scene_generator.writer import read_ply
-
-    meta = json.loads((scene / "transforms.json").read_text())
-    rec = pycolmap.Reconstruction()
-    params = [meta["fl_x"], meta["fl_y"], meta["cx"], meta["cy"]]
-    rec.add_camera_with_trivial_rig(
-        pycolmap.Camera(camera_id=1, model="PINHOLE", width=meta["w"], height=meta["h"], params=params)
-    )
-    (out / "images").mkdir(parents=True)
-    for image_id, frame in enumerate(meta["frames"], start=1):
-        c2w = np.asarray(frame["transform_matrix"], dtype=np.float64) @ np.diag([1.0, -1.0, -1.0, 1.0])
-        name = Path(frame["file_path"]).name
-        shutil.copy2(scene / frame["file_path"], out / "images" / name)
-        image = pycolmap.Image(name=name, camera_id=1, image_id=image_id)
-        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(np.linalg.inv(c2w)[:3, :4]))
-    points = read_ply(scene / meta["ply_file_path"])[0] if xyz is None else xyz
-    for p in np.asarray(points, dtype=np.float64).reshape(-1, 3):
-        rec.add_point3D(p, pycolmap.Track(), np.array([128, 128, 128], dtype=np.uint8))
-    (out / "sparse" / "0").mkdir(parents=True)
-    rec.write_binary(str(out / "sparse" / "0"))
-    return out
-
-
 def test_a_colmap_folder_is_checked(tiny_orbit_scene, tmp_path, capsys):
     pytest.importorskip("pycolmap")
-    data = _colmap(tiny_orbit_scene, tmp_path / "colmap")
+    data = colmap_folder(tiny_orbit_scene, tmp_path / "colmap")
     summary = check_dataset(data)
     assert (summary.n_frames, summary.sizes, summary.n_points) == (16, ((64, 48),), 8008)
     main(["check-data", "--data", str(data)])
@@ -336,7 +308,7 @@ def test_a_colmap_model_without_usable_points_is_one_line(
     tiny_orbit_scene, tmp_path, points, needles, capsys
 ):
     pytest.importorskip("pycolmap")
-    data = _colmap(tiny_orbit_scene, tmp_path / "colmap", points)
+    data = colmap_folder(tiny_orbit_scene, tmp_path / "colmap", points)
     with pytest.raises(StealthNSError) as info:
         check_dataset(data)
     message = str(info.value)
@@ -349,7 +321,7 @@ def test_a_colmap_model_without_usable_points_is_one_line(
 
 def test_a_colmap_image_outside_its_folder_is_refused(tiny_orbit_scene, tmp_path):
     pycolmap = pytest.importorskip("pycolmap")
-    data = _colmap(tiny_orbit_scene, tmp_path / "colmap")
+    data = colmap_folder(tiny_orbit_scene, tmp_path / "colmap")
     model = pycolmap.Reconstruction(str(data / "sparse" / "0"))
     (tmp_path / "secret.png").write_bytes((data / "images" / "frame_00003.png").read_bytes())
     model.image(4).name = "../../secret.png"

@@ -230,6 +230,10 @@ def test_bench_scan_checks_options_and_results_before_loading(tiny_run_pair, tmp
         (tmp_path / "bad").mkdir(exist_ok=True)
         (tmp_path / "bad" / "results.json").write_text(text)
         refused(needle, "bench", "scan", "--runs", tmp_path / "bad", "--output", out)
+    refused(
+        "--fit-first: no run of scene garden to scan; scenes: orbit",
+        "bench", "scan", "--runs", bench, "--output", out, "--fit-first", "garden",
+    )  # fmt: skip
     assert not out.exists()
     # before torch and nerfstudio load (the old code scanned the runs, then failed on --opaque)
     argv = ["bench", "scan", "--runs", str(bench), "--output", str(out), "--opaque", "2"]
@@ -272,3 +276,5 @@ def test_bench_scan_records_what_it_wrote(tiny_run_pair, tmp_path):
     record = json.loads((out / ".stealth-ns-bench-scan.json").read_text())
     assert record["files"] == {k: v for k, v in digest(out).items() if not k.startswith(".")}
     assert set(record["files"]) == {"scan-results.json", "scan.md", "roc.png"}
+    assert rows[0]["tampered"] == [] and all({"view", "index", "share"} == set(g) for g in rows[0]["groups"])
+    assert "Needs runs of at least two scenes." in (out / "scan.md").read_text()

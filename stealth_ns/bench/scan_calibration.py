@@ -1,0 +1,165 @@
+"""The scan's region threshold chosen on some scenes and judged on the others (held-out calibration).
+
+Pure functions over ``bench scan`` rows. A row carries every rendered group of flagged Gaussians
+(``groups``: the view's name and index, and the share of that view its connected effect covers)
+and the views the run's poison was meant for (``tampered``: training indices of the poisoned views
+and of their support views; empty for a clean run). At a region threshold ``t`` the scan calls a
+model suspicious when some group covers ``t`` of its view, and it is *right* on
+
+* a clean model when no group reaches ``t``;
+* a poisoned model (attack succeeded) when some group reaches ``t`` and every group that does is
+  in a tampered view.
+
+Runs whose attack failed are neither fitted nor scored (there may be no illusion to find).
+
+The scenes are split in two halves. The threshold is chosen on one half (most rows right; among
+equally good thresholds, the middle, on a log scale, of the widest gap between the shares around
+it) and the confusion counted on the other; then the halves swap. Margins say how far each model
+is from the threshold of its fold, as a factor: above 1 on the right side, below 1 on the wrong one.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+Row = dict[str, Any]
+
+
+def scored(rows: Sequence[Row]) -> list[Row]:
+    """The rows calibration uses: clean models and poisoned models whose attack succeeded."""
+    return [r for r in rows if not r.get("attack_failed")]
+
+
+def _shares(row: Row) -> tuple[float, float]:
+    """``(hit, wrong)``: the largest region share among the groups in tampered views and among the
+    others (0 where there is none)."""
+    tampered = set(row.get("tampered") or [])
+    hit = max((g["share"] for g in row["groups"] if g["index"] in tampered), default=0.0)
+    wrong = max((g["share"] for g in row["groups"] if g["index"] not in tampered), default=0.0)
+    return hit, wrong
+
+
+def right_at(row: Row, threshold: float) -> bool:
+    """Whether the scan at region threshold ``threshold`` is right on ``row`` (module docstring)."""
+    hit, wrong = _shares(row)
+    if not row["poisoned"]:
+        return wrong < threshold
+    return hit >= threshold > wrong
+
+
+def verdict_at(row: Row, threshold: float) -> str:
+    return "suspicious" if any(g["share"] >= threshold for g in row["groups"]) else "clean"
+
+
+def margin(row: Row, threshold: float) -> float:
+    """How far ``row`` is from ``threshold``, as a factor (> 1: right with room, < 1: wrong).
+
+    Clean: the threshold over its largest share. Poisoned: the smaller of its tampered share over
+    the threshold and the threshold over its largest share elsewhere."""
+    hit, wrong = _shares(row)
+    below = threshold / wrong if wrong > 0 else math.inf
+    if not row["poisoned"]:
+        return below
+    return min(hit / threshold, below)
+
+
+def choose_threshold(rows: Sequence[Row]) -> float:
+    """The region threshold that gets the most of ``rows`` right (ties: the log-middle of the
+    widest gap between shares); ValueError for no rows."""
+    values = sorted({s for r in rows for s in _shares(r) if s > 0})
+    if not rows:
+        raise ValueError("no rows to choose a threshold on")
+    if not values:
+        return 0.01
+    # candidate intervals between consecutive shares, with open ends a decade beyond them
+    bounds = [values[0] / 10, *values, min(1.0, values[-1] * 10)]
+    best: tuple[int, float, float] | None = None
+    for low, high in zip(bounds[:-1], bounds[1:], strict=True):
+        if high <= low:
+            continue
+        t = math.sqrt(low * high)
+        key = (sum(right_at(r, t) for r in rows), math.log(high / low), t)
+        if best is None or key[:2] > best[:2]:
+            best = key
+    assert best is not None
+    return best[2]
+
+
+def split_scenes(scenes: Sequence[str], first: Sequence[str] = ()) -> tuple[list[str], list[str]]:
+    """The two halves: ``first`` (default: every other scene, from the first) and the rest."""
+    half = [s for s in scenes if s in set(first)] if first else list(scenes[::2])
+    return half, [s for s in scenes if s not in half]
+
+
+def confusion_at(rows: Sequence[Row], threshold: float) -> dict[str, int]:
+    """Counts at ``threshold``: clean models called clean / suspicious; poisoned models found with
+    the right views / suspicious but naming a wrong view / called clean."""
+    out = dict.fromkeys(("clean_clean", "clean_suspicious", "found", "wrong_view", "missed"), 0)
+    for r in rows:
+        suspicious = verdict_at(r, threshold) == "suspicious"
+        if not r["poisoned"]:
+            out["clean_suspicious" if suspicious else "clean_clean"] += 1
+        else:
+            out["found" if right_at(r, threshold) else ("wrong_view" if suspicious else "missed")] += 1
+    return out
+
+
+def held_out(rows: Sequence[Row], first: Sequence[str] = ()) -> dict[str, Any]:
+    """Two folds: the threshold chosen on each half of the scenes, judged on the other half.
+
+    Returns ``{"folds": [{fit, held_out, threshold, confusion}], "confusion": both held-out halves
+    summed, "margins": [{run, scene, poisoned, threshold, margin, right}]}``."""
+    kept = scored(rows)
+    scenes = list(dict.fromkeys(r["scene"] for r in kept))
+    a, b = split_scenes(scenes, first)
+    folds, margins = [], []
+    total = dict.fromkeys(("clean_clean", "clean_suspicious", "found", "wrong_view", "missed"), 0)
+    for fit, test in ((a, b), (b, a)):
+        fit_rows = [r for r in kept if r["scene"] in fit]
+        test_rows = [r for r in kept if r["scene"] in test]
+        if not fit_rows or not test_rows:
+            continue
+        t = choose_threshold(fit_rows)
+        counts = confusion_at(test_rows, t)
+        total = {k: total[k] + counts[k] for k in total}
+        folds.append({"fit": fit, "held_out": test, "threshold": t, "confusion": counts})
+        margins += [
+            {"run": r["run"], "scene": r["scene"], "poisoned": r["poisoned"], "threshold": t,
+             "margin": margin(r, t), "right": right_at(r, t)}
+            for r in test_rows
+        ]  # fmt: skip
+    return {"folds": folds, "confusion": total, "margins": margins}
+
+
+def calibration_lines(result: dict[str, Any]) -> list[str]:
+    """scan.md's section: each fold's threshold and held-out confusion, then every model's margin."""
+    if not result["folds"]:
+        return ["## Held-out calibration", "", "Needs runs of at least two scenes.", ""]
+    lines = [
+        "## Held-out calibration of the region threshold",
+        "",
+        "The threshold is chosen on one half of the scenes and judged on the other, then the halves swap "
+        "(failed attacks left out; docs/scan.md).",
+        "",
+        "| fitted on | threshold | judged on | clean → clean | clean → suspicious | found (right views) | "
+        "wrong view | missed |",
+        "|---|--:|---|--:|--:|--:|--:|--:|",
+    ]
+    for f in [*result["folds"], None]:
+        c = result["confusion"] if f is None else f["confusion"]
+        head = (
+            ["both folds", "–", "every scene"]
+            if f is None
+            else [", ".join(f["fit"]), f"{100 * f['threshold']:.2f}%", ", ".join(f["held_out"])]
+        )
+        cells = [c["clean_clean"], c["clean_suspicious"], c["found"], c["wrong_view"], c["missed"]]
+        lines.append("| " + " | ".join([*head, *map(str, cells)]) + " |")
+    lines += ["", "| run | truth | threshold | margin | right |", "|---|---|--:|--:|:-:|"]
+    for m in result["margins"]:
+        factor = "∞" if math.isinf(m["margin"]) else f"{m['margin']:.2f}x"
+        truth = "poisoned" if m["poisoned"] else "clean"
+        row = [m["run"], truth, f"{100 * m['threshold']:.2f}%", factor, "yes" if m["right"] else "no"]
+        lines.append("| " + " | ".join(row) + " |")
+    return [*lines, ""]

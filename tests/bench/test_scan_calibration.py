@@ -1,0 +1,91 @@
+"""The held-out calibration of the scan's region threshold (pure functions over bench scan rows)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from stealth_ns.bench.scan_calibration import (
+    calibration_lines,
+    choose_threshold,
+    confusion_at,
+    held_out,
+    margin,
+    right_at,
+    split_scenes,
+)
+
+
+def row(scene, run, groups, tampered=(), failed=False):
+    """A bench scan row: ``groups`` as (view index, share); poisoned when ``tampered`` names views."""
+    return {
+        "run": f"{scene}/{run}",
+        "scene": scene,
+        "poisoned": bool(tampered),
+        "attack_failed": failed,
+        "groups": [{"view": f"v{i}", "index": i, "share": s} for i, s in groups],
+        "tampered": list(tampered),
+    }
+
+
+def test_right_needs_the_poisoned_view_and_nothing_else():
+    clean = row("a", "clean", [(3, 0.004)])
+    poisoned = row("a", "p", [(5, 0.08), (3, 0.004)], tampered=[5])
+    wrong = row("a", "w", [(3, 0.08)], tampered=[5])
+    assert right_at(clean, 0.01) and not right_at(clean, 0.003)
+    assert right_at(poisoned, 0.01) and not right_at(poisoned, 0.003)  # v3 would be named too
+    assert not right_at(poisoned, 0.1)  # missed
+    assert not right_at(wrong, 0.01)
+    assert confusion_at([clean, poisoned, wrong], 0.01) == {
+        "clean_clean": 1, "clean_suspicious": 0, "found": 1, "wrong_view": 1, "missed": 0,
+    }  # fmt: skip
+    assert confusion_at([clean, poisoned], 0.003)["clean_suspicious"] == 1
+    assert margin(clean, 0.01) == pytest.approx(2.5) and margin(poisoned, 0.01) == pytest.approx(2.5)
+    assert margin(row("a", "empty", []), 0.01) == math.inf
+
+
+def test_the_threshold_is_the_log_middle_of_the_widest_right_gap():
+    rows = [
+        row("a", "clean", [(0, 0.002)]),
+        row("a", "clean2", [(0, 0.004)]),
+        row("a", "p", [(1, 0.04)], tampered=[1]),
+        row("a", "p2", [(1, 0.16)], tampered=[1]),
+    ]
+    assert choose_threshold(rows) == pytest.approx(math.sqrt(0.004 * 0.04))
+    # a clean model above a poisoned one: the best threshold gets 3 of 4 right
+    rows.append(row("a", "clean3", [(0, 0.08)]))
+    t = choose_threshold(rows)
+    assert sum(right_at(r, t) for r in rows) == 4
+    with pytest.raises(ValueError):
+        choose_threshold([])
+
+
+def test_held_out_folds_fit_on_one_half_and_judge_the_other():
+    rows = []
+    for scene, clean_share, poison_share in (("s1", 0.003, 0.05), ("s2", 0.002, 0.2), ("s3", 0.03, 0.06)):
+        rows += [row(scene, "clean", [(0, clean_share)]), row(scene, "p", [(1, poison_share)], tampered=[1])]
+    rows.append(row("s4", "failed", [(0, 0.5)], tampered=[1], failed=True))  # neither fitted nor judged
+    assert split_scenes(["s1", "s2", "s3"]) == (["s1", "s3"], ["s2"])
+    assert split_scenes(["s1", "s2", "s3"], ["s2"]) == (["s2"], ["s1", "s3"])
+    result = held_out(rows)
+    first, second = result["folds"]
+    assert (first["fit"], first["held_out"]) == (["s1", "s3"], ["s2"])
+    assert first["confusion"] == {
+        "clean_clean": 1,
+        "clean_suspicious": 0,
+        "found": 1,
+        "wrong_view": 0,
+        "missed": 0,
+    }
+    # fitted on s2 alone (0.002 | 0.2), the threshold lies between them: s3's clean 3 % is called suspicious
+    assert second["threshold"] == pytest.approx(math.sqrt(0.002 * 0.2))
+    assert second["confusion"]["clean_suspicious"] == 1
+    assert result["confusion"]["clean_suspicious"] == 1 and result["confusion"]["found"] == 3
+    assert len(result["margins"]) == 6 and {m["run"] for m in result["margins"]} == {
+        r["run"] for r in rows[:6]
+    }
+    text = "\n".join(calibration_lines(result))
+    assert "| s1, s3 | " in text and "| both folds | – | every scene | 2 | 1 | 3 | 0 | 0 |" in text
+    assert "| s3/clean | clean | 2.00% | 0.67x | no |" in text  # on the wrong side: below 1
+    assert held_out(rows[:2])["folds"] == []  # one scene: nothing held out
