@@ -172,7 +172,6 @@ class _Bench:
             train_seconds=record.seconds,
             trained_at=record.finished_at,
             iterations=record.iterations,
-            peak_rss_mb=record.peak_rss_mb,
             median_step_ms=median_step_ms(p.spec.run_dir),
             log=str(p.spec.run_dir / TRAIN_LOG),
         )

@@ -147,7 +147,7 @@ def render_table(data: dict[str, Any]) -> str:
 def _runs_table(runs: dict[str, dict[str, Any]]) -> str:
     header = [
         "Run", "Settings", "Poisoned view(s)", "V-illusory PSNR", "V-test PSNR (clean → poisoned)",
-        "Drop", "Success", "Gaussians (poison)", "Training", "Median step", "Peak RSS", "This invocation",
+        "Drop", "Success", "Gaussians (poison)", "Training", "Median step", "This invocation",
     ]  # fmt: skip
     lines = ["## All runs", "", "| " + " | ".join(header) + " |", "|" + "|".join([":--"] * len(header)) + "|"]
     for key, e in runs.items():
@@ -169,12 +169,10 @@ def _runs_table(runs: dict[str, dict[str, Any]]) -> str:
         status = e.get("status", MISSING)
         if e.get("metrics_error"):
             status += " (metrics failed)"
-        step, rss = e.get("median_step_ms"), e.get("peak_rss_mb")
-        cost = [
-            f"{step:.0f} ms" if isinstance(step, (int, float)) else MISSING,
-            f"{rss / 1024:.2f} GiB" if isinstance(rss, (int, float)) else MISSING,
-        ]
-        lines.append("| " + " | ".join([key, e.get("label", ""), *cells, train_time, *cost, status]) + " |")
+        step = e.get("median_step_ms")
+        step_time = f"{step:.0f} ms" if isinstance(step, (int, float)) else MISSING
+        row = [key, e.get("label", ""), *cells, train_time, step_time, status]
+        lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 
