@@ -43,7 +43,7 @@ PRESETS: tuple[str, ...] = ("orbit", "forward", "facing")
 FOLDERS: dict[str, str] = {"fox": "../shared/data/fox"}
 #: The phone captures at their own resolution (``../shared/data/captures``, COLMAP ``sparse/0``):
 #: ``--scenes captures`` names all three, ``--scenes beer`` one. Not in the default list: a run on
-#: them takes 2-8 minutes on a 2-core CPU where a generated scene takes one or two.
+#: them takes several times as long as one on a generated scene (docs/captures.md).
 CAPTURES: dict[str, str] = {name: f"../shared/data/captures/{name}" for name in ("beer", "bird", "cup")}
 #: ``--scenes`` words that stand for several dataset folders.
 FOLDER_GROUPS: dict[str, dict[str, str]] = {"captures": CAPTURES}
