@@ -14,10 +14,8 @@ from typing import Any
 from stealth_ns.bench.plan import Plan, PlannedRun
 from stealth_ns.bench.stealth_plot import STEALTH_PLOT, plot_stealth
 from stealth_ns.bench.tables import NOT_IMPLEMENTED, SUCCESS_RULE, render_markdown, table_data
-from stealth_ns.datasets.check import check_colmap
 from stealth_ns.datasets.generated import scene_info
 from stealth_ns.datasets.source import SceneSource
-from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import json_safe, write_json_atomic
 from stealth_ns.foundation.provenance import software_and_hardware
 from stealth_ns.method_configs.attack_experiments import (
@@ -76,18 +74,16 @@ def run_entry(p: PlannedRun) -> dict[str, Any]:
 
 def _folder_info(src: SceneSource) -> dict[str, Any]:
     """Views and resolution (the first view's, width x height) of a nerfstudio-data folder (its
-    transforms.json) or a COLMAP folder (its model's cameras and the images' headers), else unknowns."""
+    transforms.json) or a COLMAP folder (as the dataset check found them when the scenes were
+    parsed), else unknowns."""
     info: dict[str, Any] = {"resolution": None, "views": None}
     if src.path is None:
         return info
     if src.format == "colmap":
-        try:
-            summary = check_colmap(src.path, str(src.colmap_path), decode=False)
-        except StealthNSError:
-            return info
-        info["views"] = summary.n_frames
-        info["resolution"] = list(summary.sizes[0]) if len(summary.sizes) == 1 else None
-        info["resolutions"] = [list(size) for size in summary.sizes]
+        if src.views is not None:
+            info["views"] = src.views
+            info["resolution"] = list(src.sizes[0]) if len(src.sizes) == 1 else None
+            info["resolutions"] = [list(size) for size in src.sizes]
         return info
     if src.format != "nerfstudio-data":
         return info

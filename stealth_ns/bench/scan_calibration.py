@@ -24,7 +24,11 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from stealth_ns.scan.config import ScanConfig
+
 Row = dict[str, Any]
+#: The counts of a confusion table at one threshold.
+COUNTS: tuple[str, ...] = ("clean_clean", "clean_suspicious", "found", "wrong_view", "missed")
 
 
 def scored(rows: Sequence[Row]) -> list[Row]:
@@ -68,11 +72,11 @@ def margin(row: Row, threshold: float) -> float:
 def choose_threshold(rows: Sequence[Row]) -> float:
     """The region threshold that gets the most of ``rows`` right (ties: the log-middle of the
     widest gap between shares); ValueError for no rows."""
-    values = sorted({s for r in rows for s in _shares(r) if s > 0})
     if not rows:
         raise ValueError("no rows to choose a threshold on")
-    if not values:
-        return 0.01
+    values = sorted({s for r in rows for s in _shares(r) if s > 0})
+    if not values:  # no group anywhere: every threshold is as good as the scan's own
+        return ScanConfig.region_threshold
     # candidate intervals between consecutive shares, with open ends a decade beyond them
     bounds = [values[0] / 10, *values, min(1.0, values[-1] * 10)]
     best: tuple[int, float, float] | None = None
@@ -96,7 +100,7 @@ def split_scenes(scenes: Sequence[str], first: Sequence[str] = ()) -> tuple[list
 def confusion_at(rows: Sequence[Row], threshold: float) -> dict[str, int]:
     """Counts at ``threshold``: clean models called clean / suspicious; poisoned models found with
     the right views / suspicious but naming a wrong view / called clean."""
-    out = dict.fromkeys(("clean_clean", "clean_suspicious", "found", "wrong_view", "missed"), 0)
+    out = dict.fromkeys(COUNTS, 0)
     for r in rows:
         suspicious = verdict_at(r, threshold) == "suspicious"
         if not r["poisoned"]:
@@ -115,7 +119,7 @@ def held_out(rows: Sequence[Row], first: Sequence[str] = ()) -> dict[str, Any]:
     scenes = list(dict.fromkeys(r["scene"] for r in kept))
     a, b = split_scenes(scenes, first)
     folds, margins = [], []
-    total = dict.fromkeys(("clean_clean", "clean_suspicious", "found", "wrong_view", "missed"), 0)
+    total = dict.fromkeys(COUNTS, 0)
     for fit, test in ((a, b), (b, a)):
         fit_rows = [r for r in kept if r["scene"] in fit]
         test_rows = [r for r in kept if r["scene"] in test]

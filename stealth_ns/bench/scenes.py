@@ -7,10 +7,11 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from stealth_ns.datasets.check import check_colmap, check_dataset
+from stealth_ns.datasets.check import DatasetSummary, check_colmap, check_dataset
 from stealth_ns.datasets.source import SceneSource, inspect_folder
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import write_json_atomic
@@ -71,8 +72,11 @@ def parse_scenes(values: Sequence[str] | None) -> tuple[tuple[SceneSource, ...],
                 f"give --scenes {name}=PATH to use it from elsewhere)"
             )
         else:
-            sources.append(inspect_folder(name, folder))
-            check_source(sources[-1])  # what training would refuse, before any run is planned
+            src = inspect_folder(name, folder)
+            summary = check_source(src)  # what training would refuse, before any run is planned
+            if summary is not None:
+                src = replace(src, views=summary.n_frames, sizes=summary.sizes)
+            sources.append(src)
     order = {name: i for i, name in enumerate(SCENES)}
     sources.sort(key=lambda src: order.get(src.name, len(order)))  # stable: other folders as given
     return tuple(sources), tuple(skipped)
@@ -137,16 +141,18 @@ def scene_fingerprint(plan_dir: Path, src: SceneSource, record: dict[str, Any] |
     return src.sha256 + (f":{record['ply_sha256']}" if record else "")
 
 
-def check_source(src: SceneSource) -> None:
+def check_source(src: SceneSource) -> DatasetSummary | None:
     """The check ns-train runs when it starts (:func:`stealth_ns.method.datamanager.check_nerfstudio_data`),
     run on a dataset folder before a benchmark plans runs on it: StealthNSError with one line, naming the
-    scene, for what training would refuse. Blender folders are converted first (nothing to check)."""
+    scene, for what training would refuse; else what it found (None for a preset, or a Blender folder:
+    converted first, nothing to check)."""
     if src.path is None:
-        return
+        return None
     try:
         if src.format == "nerfstudio-data":
-            check_dataset(src.path)
-        elif src.format == "colmap":
-            check_colmap(src.path, str(src.colmap_path))
+            return check_dataset(src.path)
+        if src.format == "colmap":
+            return check_colmap(src.path, str(src.colmap_path))
     except StealthNSError as err:
         raise StealthNSError(f"scene {src.name}: {err}") from None
+    return None

@@ -64,6 +64,10 @@ class SceneSource:
     files: tuple[tuple[str, str], ...] = ()
     """``(relative path, sha256)`` of the files that define the dataset (transforms.json, the COLMAP
     model); their hash :attr:`sha256` identifies it."""
+    views: int | None = None
+    """Frames, as the dataset check counted them (None: not checked)."""
+    sizes: tuple[tuple[int, int], ...] = ()
+    """Distinct image sizes (width, height), as the dataset check read them (empty: not checked)."""
 
     @property
     def is_preset(self) -> bool:
