@@ -13,8 +13,9 @@ Installed as ``stealth_ns.method_configs.attack_experiments``. Everything here i
   h = 7.5, Table 5's 100/linear and Table 6's last row. Every attack run spells out all the
   settings the tables vary, so a run never depends on the attack's defaults.
 * :data:`TABLES` -- the paper's Tables 1-6 (:class:`TableSpec`): column groups (a scene, or a
-  difficulty level of one scene) and rows, each naming the run it shows in each group. Tables 1
-  and 2 also take any other dataset folder given to ``--scenes`` (:meth:`TableSpec.for_scenes`).
+  difficulty level of one scene) and rows, each naming the run it shows in each group. Tables 1-3
+  (and the stealth tables) also take any other dataset folder given to ``--scenes``
+  (:meth:`TableSpec.for_scenes`).
 
 Scenes: the generated presets ``orbit`` (stands in for the paper's Mip-NeRF 360: inward 360
 degree captures, the median-indexed frame is poisoned), ``forward`` (its Free dataset: free
@@ -175,24 +176,10 @@ def _uniform_runs(scene: str) -> list[RunSpec]:
         RunSpec(scene, "gt-noise", attack_settings(density_guided=False), label="GT + view noise"),
     ]
     runs += [
-        RunSpec(scene, f"views-{k}", attack_settings(multi_view=k), label=f"{k} poisoned views")
-        for k in MULTI_VIEWS
-    ]
-    runs += [
         RunSpec(scene, "data-only", CLEAN, poisoning="data-only", label=DATA_ONLY_LABEL),
         RunSpec(scene, "ipa", CLEAN, poisoning="ipa", label=IPA_LABEL),
     ]
-    runs += [
-        RunSpec(
-            scene,
-            f"ipa-views-{k}",
-            CLEAN,
-            poisoning="ipa",
-            poison_attack=AttackSettings.of(multi_view=k),
-            label=f"{IPA_LABEL}, {k} backdoor views",
-        )
-        for k in MULTI_VIEWS
-    ]
+    runs += _multi_view_runs(scene, "median-index")
     runs += [
         RunSpec(scene, _bandwidth_run(h), attack_settings(bandwidth=h), label=f"bandwidth h={h:g}")
         for h in BANDWIDTHS
@@ -226,15 +213,36 @@ def _kde_runs(scene: str) -> list[RunSpec]:
     runs.append(
         RunSpec(scene, "data-only-median", CLEAN, view="median", poisoning="data-only", label=DATA_ONLY_LABEL)
     )
+    runs += _multi_view_runs(scene, "median")
     return runs
+
+
+def _multi_view_runs(scene: str, view: ViewChoice) -> list[RunSpec]:
+    """Table 3's runs: 2-4 poisoned views around ``view``, in-loop and IPA-Splat."""
+    runs = [
+        RunSpec(scene, f"views-{k}", attack_settings(multi_view=k), view=view, label=f"{k} poisoned views")
+        for k in MULTI_VIEWS
+    ]
+    return runs + [
+        RunSpec(
+            scene,
+            f"ipa-views-{k}",
+            CLEAN,
+            view=view,
+            poisoning="ipa",
+            poison_attack=AttackSettings.of(multi_view=k),
+            label=f"{IPA_LABEL}, {k} backdoor views",
+        )
+        for k in MULTI_VIEWS
+    ]
 
 
 _KIND_RUNS = {"uniform": _uniform_runs, "kde": _kde_runs}
 
 #: Table 7's rows beyond the default attack: the stealth-aware variants, then the attack's other
 #: knobs one at a time (``docs/stealth.md``): (run name, settings given after :func:`attack_settings`'s,
-#: label). A uniform scene shows Tables 3 and 5's runs for the settings they share
-#: (:data:`STEALTH_SHARED`).
+#: label). A scene shows Table 3's (and a uniform scene Table 5's) runs for the settings they share
+#: (:func:`shared_run`).
 STEALTH_SETTINGS: tuple[tuple[str, AttackSettings, str], ...] = (
     ("st-support-3", AttackSettings.of(support_views=3), "support views 3 (stealth-aware)"),
     ("st-support-4", AttackSettings.of(support_views=4), "support views 4 (stealth-aware)"),
@@ -260,17 +268,24 @@ STEALTH_VARIANTS: tuple[str, ...] = (
     "st-support-6",
     "st-surface",
 )
-STEALTH_SHARED: dict[str, str] = {"st-sigma-30": _noise_run(30.0, "linear"), "st-views-2": "views-2"}
+#: Stealth settings that are another table's run: (on every scene, on uniform scenes only).
+_SHARED_EVERYWHERE: dict[str, str] = {"st-views-2": "views-2"}
+_SHARED_UNIFORM: dict[str, str] = {"st-sigma-30": _noise_run(30.0, "linear")}
+
+
+def shared_run(scene: str, setting: str) -> str | None:
+    """The run of Table 3 or 5 that a stealth ``setting`` is on ``scene``, or None (its own run)."""
+    shared = _SHARED_EVERYWHERE | (_SHARED_UNIFORM if scene_kind(scene) == "uniform" else {})
+    return shared.get(setting)
 
 
 def _stealth_runs(scene: str) -> list[RunSpec]:
-    """Table 7's runs of a scene (those a uniform scene shares with Tables 3 and 5 excepted)."""
-    uniform = scene_kind(scene) == "uniform"
-    view: ViewChoice = "median-index" if uniform else "median"
+    """Table 7's runs of a scene (those it shares with Tables 3 and 5 excepted)."""
+    view: ViewChoice = "median-index" if scene_kind(scene) == "uniform" else "median"
     return [
         RunSpec(scene, name, attack_settings() + extra, view=view, label=label)
         for name, extra, label in STEALTH_SETTINGS
-        if not (uniform and name in STEALTH_SHARED)
+        if shared_run(scene, name) is None
     ]
 
 
@@ -283,7 +298,7 @@ def stealth_run(scene: str, setting: str) -> str:
     """Table 7's run of ``scene`` for ``setting`` (a :data:`STEALTH_SETTINGS` name, or ``default``)."""
     if setting == "default":
         return single_view_run(scene)
-    return STEALTH_SHARED.get(setting, setting) if scene_kind(scene) == "uniform" else setting
+    return shared_run(scene, setting) or setting
 
 
 #: Every run of the declared scenes, clean baselines first within each scene.
@@ -359,12 +374,12 @@ class TableSpec:
         return tuple(dict.fromkeys(g.scene for g in self.groups))
 
     def for_scenes(self, scenes: tuple[str, ...]) -> TableSpec:
-        """This table with column groups for the scenes of ``scenes`` it does not declare, when they
-        are of its template's kind (a dataset folder ``mine=PATH`` gets columns like ``fox``)."""
+        """This table with column groups for the dataset folders of ``scenes`` it does not declare, when
+        they are of its template's kind (a folder ``mine=PATH`` gets columns like ``fox``)."""
         if self.template is None:
             return self
         kind = scene_kind(self.template)
-        extra = [s for s in scenes if s not in self.scenes and scene_kind(s) == kind]
+        extra = [s for s in scenes if s not in self.scenes + PRESETS and scene_kind(s) == kind]
         if not extra:
             return self
         like = [i for i, g in enumerate(self.groups) if g.scene == self.template]
@@ -472,22 +487,24 @@ TABLES: tuple[TableSpec, ...] = (
     ),
     TableSpec(
         number=3,
-        title="Multi-view attack (orbit scene; V-illusory averaged over the poisoned views)",
+        title="Multi-view attack (V-illusory averaged over the poisoned views)",
         key_header=("# of views", "Method"),
-        groups=(_ORBIT_ONLY,),
+        groups=(_ORBIT_ONLY, Group("fox")),
         rows=tuple(
             row
             for k in MULTI_VIEWS
             for row in (
-                Row((str(k), "IPA-Splat"), (f"ipa-views-{k}",)),
-                Row((str(k), "Ours"), (f"views-{k}",)),
+                Row((str(k), "IPA-Splat"), (f"ipa-views-{k}",) * 2),
+                Row((str(k), "Ours"), (f"views-{k}",) * 2),
             )
         ),
         notes=(
             NO_BASELINES,
             "Poisoned views: the training views nearest 0°, 90°, 180°, 270° of azimuth from the "
-            "median-indexed frame.",
+            "median-indexed frame (orbit) or from the KDE protocol's Median view (fox and any other "
+            "dataset folder); where a capture spans less than 270°, the nearest views there are.",
         ),
+        template="fox",
     ),
     TableSpec(
         number=4,

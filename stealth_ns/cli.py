@@ -215,6 +215,9 @@ class BenchAttack:
     """Attacks whose rows Tables 1-3 show: in-loop (ns-train stealth-splat*), data-only (a poisoned dataset
     from stealth-ns poison-dataset, plain victim) and ipa (IPA-Splat, stealth-ns ipa-poison: the attacker
     trains once more per row). docs/baselines.md."""
+    only: tuple[str, ...] = ()
+    """Train only the runs whose name (SCENE/RUN, e.g. fox/views-2 or st-support-3) contains one of these,
+    with their scenes' clean baselines; the tables' other cells read n/a."""
     defend: bool = False
     """Also Table D, stealth under defences: stealth-ns defend on each scene's Table 1 poisoned run into
     OUTPUT/defend/SCENE (adds Table 1; its input-filter defence retrains each of those runs once;
@@ -264,6 +267,7 @@ class BenchAttack:
             dry_run=self.dry_run,
             defend=self.defend,
             attacks=self.attacks,
+            only=self.only,
             executor=ExecutorOptions(
                 name=self.executor,
                 address=self.ray_address,

@@ -42,18 +42,29 @@ def run_bench(
     executor: ExecutorOptions | None = None,
     defend: bool = False,
     attacks: Sequence[str] = ATTACKS,
+    only: Sequence[str] = (),
 ) -> Plan | dict[str, Any]:
     """``stealth-ns bench attack``: the plan (``dry_run``) or the results document.
 
     ``executor``: where the trainings run (``--executor`` and its options; default local).
     ``defend``: also Table D (:mod:`stealth_ns.bench.defence_table`), which needs Table 1's runs.
+    ``only``: plan only the runs whose ``SCENE/RUN`` contains one of these (``--only``).
     """
     options = (executor or ExecutorOptions()).checked()
     if defend:
         tables = (*parse_tables(tables), 1)
     # without --dry-run this first plan only checks the input: the views are ranked below
     plan = bench_plan(
-        output, tables, scenes, method, iterations, seed, scene_options, rank_views=dry_run, attacks=attacks
+        output,
+        tables,
+        scenes,
+        method,
+        iterations,
+        seed,
+        scene_options,
+        rank_views=dry_run,
+        attacks=attacks,
+        only=only,
     )
     plan.executor, plan.defend = options, defend
     for line in plan.skipped_scenes:
@@ -106,6 +117,7 @@ def _run_plan(
         scene_options,
         write_cache=True,
         attacks=attacks,
+        only=plan.only,
     )
     plan.executor, plan.defend = options, defend
     plan.scene_errors.update(failed)

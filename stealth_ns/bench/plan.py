@@ -106,6 +106,9 @@ class Plan:
     """Also Table D: ``stealth-ns defend`` on each scene's Table 1 run (``--defend``)."""
     attacks: tuple[str, ...] = ATTACKS
     """The attacks whose rows are planned (``--attacks``)."""
+    only: tuple[str, ...] = ()
+    """``--only``: the runs planned are those whose ``SCENE/RUN`` contains one of these (and their
+    scenes' clean baselines); empty = every run of the tables."""
     run_errors: dict[str, str] = field(default_factory=dict)
     """Runs that cannot train (their poisoned dataset could not be made): they fail, the rest go on."""
 
@@ -145,6 +148,10 @@ class Plan:
         lines.append(f"  method:  {self.method}, {self.iterations} iterations, seed {self.seed}")
         lines.append("  tables:  " + "; ".join(f"{t.number} {t.title}" for t in self.tables))
         lines.append(f"  executor: {self.executor.describe()}")
+        if self.only:
+            lines.append(
+                f"  only:    runs whose name contains {' or '.join(self.only)}, with their clean baselines"
+            )
         if self.defend:
             lines.append(
                 "  Table D: stealth-ns defend on each scene's Table 1 poisoned run after training "
@@ -197,8 +204,10 @@ def bench_plan(
     write_cache: bool = False,
     rank_views: bool = True,
     attacks: Sequence[str] = ATTACKS,
+    only: Sequence[str] = (),
 ) -> Plan:
-    """Plan the runs of ``tables`` on ``scenes`` (bad input: :class:`StealthNSError`).
+    """Plan the runs of ``tables`` on ``scenes`` (bad input: :class:`StealthNSError`); with ``only``,
+    those of them whose ``SCENE/RUN`` contains one of its strings.
 
     Looks at the disk (which runs are finished, which scenes exist, which dataset folders have
     their seed points made) but writes nothing unless ``write_cache`` (the KDE view cache). Runs
@@ -212,6 +221,7 @@ def bench_plan(
     output = Path(output).expanduser().absolute()
     attacks = _checked_attacks(attacks)
     table_specs, skipped, uses = _table_runs(numbers, chosen_scenes, attacks)
+    uses = _only(uses, tuple(only))
     used_scenes = tuple(s for s in chosen_scenes if any(k.startswith(f"{s}/") for k in uses))
     for scene in used_scenes:  # a scene's clean run serves every table that runs on the scene
         numbers_on_scene = {n for key, ns in uses.items() if key.startswith(f"{scene}/") for n in ns}
@@ -262,7 +272,19 @@ def bench_plan(
         skipped_scenes=list(skipped_scenes),
         scene_errors=errors,
         attacks=attacks,
+        only=tuple(only),
     )
+
+
+def _only(uses: dict[str, list[int]], only: tuple[str, ...]) -> dict[str, list[int]]:
+    """The entries of ``uses`` whose run key contains one of ``only`` (all of them when empty)."""
+    if not only:
+        return uses
+    kept = {key: tables for key, tables in uses.items() if any(part in key for part in only)}
+    if not kept:
+        shown = ", ".join(list(uses)[:12]) + (", ..." if len(uses) > 12 else "")
+        raise StealthNSError(f"--only {' '.join(only)} matches none of the tables' runs: {shown}")
+    return kept
 
 
 def _checked_attacks(attacks: Sequence[str]) -> tuple[str, ...]:

@@ -151,6 +151,7 @@ def build_results(plan: Plan, runs: dict[str, dict[str, Any]], env: dict[str, An
         "success_rule": SUCCESS_RULE,
         "scenes": {scene: scene_entry(plan, scene) for scene in plan.scenes},
         "skipped_scenes": list(plan.skipped_scenes),
+        "only": list(plan.only),
         "runs": runs,
         "tables": {str(t.number): table_data(t, runs, plan.scenes) for t in plan.tables},
     }

@@ -260,6 +260,12 @@ def render_markdown(results: dict[str, Any]) -> str:
     ]
     if not results.get("complete", True):
         lines += ["**Incomplete**: some runs have not finished (or failed); their cells read n/a.", ""]
+    if results.get("only"):
+        lines += [
+            f"Only the runs whose name contains {' or '.join(results['only'])} were planned (`--only`), "
+            "with their clean baselines: the other cells read n/a.",
+            "",
+        ]
     for number in sorted(results.get("tables", {}), key=int):
         lines.append(render_table(results["tables"][number]))
     if results.get("table_d"):

@@ -30,7 +30,16 @@ from stealth_ns.datasets.seeded import SEED_POINTS_MARKER
 from stealth_ns.defence_eval.stealth import stealth_summary
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import write_json_atomic
-from stealth_ns.method_configs.attack_experiments import CLEAN, DEFAULT_SCENES, RUNS, TABLES, get_table
+from stealth_ns.method_configs.attack_experiments import (
+    CLEAN,
+    DEFAULT_SCENES,
+    RUNS,
+    TABLES,
+    attack_settings,
+    get_run,
+    get_table,
+    stealth_run,
+)
 from stealth_ns.runs import training as runs
 from stealth_ns.runs.training import TrainSpec, is_finished, run_status, train
 
@@ -191,8 +200,9 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     assert all(c.parent.parent == tmp_path / "poisoned" for c in copies)
     # one run per distinct setting: no two presets of a scene train the same thing
     settings = {(r.scene, r.attack, r.view, r.poisoning, r.poison_attack) for r in RUNS}
-    # orbit 22 + 9 of the stealth tables (2 more are Tables 3 and 5's), forward / facing / fox 8 + 11 each
-    assert len(settings) == len(RUNS) == 88
+    # orbit 22 + 9 of the stealth tables (2 more are Tables 3 and 5's); forward / facing / fox 8, 6 of
+    # Table 3 and 10 of the stealth tables (st-views-2 is Table 3's views-2) each
+    assert len(settings) == len(RUNS) == 103
     easy = plan.get("forward/easy")
     assert "<EASY view of the KDE protocol>" in easy.spec.options
     assert easy.spec.attack.config().views == ("<EASY view of the KDE protocol>",)
@@ -524,7 +534,45 @@ def test_table_specs_are_consistent():
                 assert run.view == ("median-index" if g.scene == "orbit" else "median") and not run.poisoning
     support = [f"orbit/st-support-{k}" for k in (3, 4, 5, 6)]
     assert get_table(7).run_keys(("orbit",)) == ["orbit/full", *support, "orbit/st-surface"]
-    assert "orbit/views-2" in get_table(8).run_keys() and "fox/st-views-2" in get_table(8).run_keys()
+    assert "orbit/views-2" in get_table(8).run_keys() and "fox/views-2" in get_table(8).run_keys()
+
+
+def test_table_3_takes_dataset_folders_not_presets():
+    table = get_table(3).for_scenes(("orbit", "forward", "facing", "fox", "mine"))
+    assert table.scenes == ("orbit", "fox", "mine")
+    assert table.run_keys(("mine",)) == [f"mine/{m}views-{k}" for k in (2, 3, 4) for m in ("ipa-", "")]
+    views = get_run("mine", "views-3")
+    assert views.view == "median" and views.attack == attack_settings(multi_view=3)
+    ipa = get_run("mine", "ipa-views-4")
+    assert (
+        ipa.view == "median"
+        and ipa.poisoning == "ipa"
+        and ipa.poison_attack == AttackSettings.of(multi_view=4)
+    )
+    assert get_run("orbit", "views-2").view == "median-index"
+    # Table 8's two-view row is Table 3's run on every scene, not a second training of it
+    assert stealth_run("mine", "st-views-2") == "views-2" == stealth_run("orbit", "st-views-2")
+    assert (
+        stealth_run("fox", "st-sigma-30") == "st-sigma-30"
+        and stealth_run("orbit", "st-sigma-30") == "sigma30-linear"
+    )
+
+
+def test_only_plans_the_matching_runs_and_their_clean_baselines(tmp_path, capsys):
+    plan = bench_plan(
+        tmp_path,
+        tables=["1", "3"],
+        scenes=["orbit", "forward"],
+        iterations=30,
+        only=["views-2", "forward/median"],
+    )
+    assert [p.key for p in plan.runs] == [
+        "orbit/clean", "orbit/ipa-views-2", "orbit/views-2", "forward/clean", "forward/median",
+    ]  # fmt: skip
+    assert plan.only == ("views-2", "forward/median")
+    assert "only:    runs whose name contains views-2 or forward/median" in plan.describe(dry_run=True)
+    with pytest.raises(StealthNSError, match=r"--only views-9 matches none of the tables' runs: orbit/"):
+        bench_plan(tmp_path, tables=["3"], scenes=["orbit"], iterations=30, only=["views-9"])
 
 
 # ------------------------------------------------------------------------------ bad input
