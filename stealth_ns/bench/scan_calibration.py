@@ -1,21 +1,27 @@
-"""The scan's region threshold chosen on some scenes and judged on the others (held-out calibration).
+"""The scan's verdict rule chosen on some scenes and judged on the others (held-out calibration).
 
 Pure functions over ``bench scan`` rows. A row carries every rendered group of flagged Gaussians
-(``groups``: the view's name and index, and the share of that view its connected effect covers)
-and the views the run's poison was meant for (``tampered``: training indices of the poisoned views
-and of their support views; empty for a clean run). At a region threshold ``t`` the scan calls a
-model suspicious when some group covers ``t`` of its view, and it is *right* on
+(``groups``: the view's name and index, the share of that view its connected effect covers and,
+from rows written since it was recorded, its number of Gaussians) and the views the run's poison was
+meant for (``tampered``: training indices of the poisoned views and of their support views; empty
+for a clean run). The rule has two numbers: a region threshold ``t`` and a group size ``m`` (the
+scan's ``--min-group``). A group *counts* when it has at least ``m`` Gaussians (a group whose size was
+not recorded always does) and covers at least ``t`` of its view. The scan calls a model suspicious
+when some group counts, and it is *right* on
 
-* a clean model when no group reaches ``t``;
-* a poisoned model (attack succeeded) when some group reaches ``t`` and every group that does is
-  in a tampered view.
+* a clean model when no group counts;
+* a poisoned model (attack succeeded) when some group counts and every group that does is in a
+  tampered view.
 
 Runs whose attack failed are neither fitted nor scored (there may be no illusion to find).
 
-The scenes are split in two halves. The threshold is chosen on one half (most rows right; among
-equally good thresholds, the middle, on a log scale, of the widest gap between the shares around
-it) and the confusion counted on the other; then the halves swap. Margins say how far each model
-is from the threshold of its fold, as a factor: above 1 on the right side, below 1 on the wrong one.
+The scenes are split in two halves. The rule is chosen on one half and the confusion counted on the
+other; then the halves swap. For each candidate group size (the scan's own minimum, and the
+geometric middles between the sizes seen) the threshold is the one that gets the most rows right
+(among equally good ones, the middle, on a log scale, of the widest gap between the shares around
+it); the rule is the size whose threshold gets the most right, the smallest among equals (a larger
+size is taken only where it gets more right). Margins say how far each model is from the threshold
+of its fold, as a factor: above 1 on the right side, below 1 on the wrong one.
 """
 
 from __future__ import annotations
@@ -36,47 +42,52 @@ def scored(rows: Sequence[Row]) -> list[Row]:
     return [r for r in rows if not r.get("attack_failed")]
 
 
-def _shares(row: Row) -> tuple[float, float]:
-    """``(hit, wrong)``: the largest region share among the groups in tampered views and among the
-    others (0 where there is none)."""
+def _groups(row: Row, size: float) -> list[dict[str, Any]]:
+    """The groups of ``row`` with at least ``size`` Gaussians (those of unrecorded size too)."""
+    return [g for g in row["groups"] if g.get("gaussians", math.inf) >= size]
+
+
+def _shares(row: Row, size: float = 0) -> tuple[float, float]:
+    """``(hit, wrong)``: the largest region share among the groups (of at least ``size`` Gaussians)
+    in tampered views and among the others (0 where there is none)."""
     tampered = set(row.get("tampered") or [])
-    hit = max((g["share"] for g in row["groups"] if g["index"] in tampered), default=0.0)
-    wrong = max((g["share"] for g in row["groups"] if g["index"] not in tampered), default=0.0)
+    groups = _groups(row, size)
+    hit = max((g["share"] for g in groups if g["index"] in tampered), default=0.0)
+    wrong = max((g["share"] for g in groups if g["index"] not in tampered), default=0.0)
     return hit, wrong
 
 
-def right_at(row: Row, threshold: float) -> bool:
-    """Whether the scan at region threshold ``threshold`` is right on ``row`` (module docstring)."""
-    hit, wrong = _shares(row)
+def right_at(row: Row, threshold: float, size: float = 0) -> bool:
+    """Whether the scan at region threshold ``threshold`` and group size ``size`` is right on ``row``
+    (module docstring)."""
+    hit, wrong = _shares(row, size)
     if not row["poisoned"]:
         return wrong < threshold
     return hit >= threshold > wrong
 
 
-def verdict_at(row: Row, threshold: float) -> str:
-    return "suspicious" if any(g["share"] >= threshold for g in row["groups"]) else "clean"
+def verdict_at(row: Row, threshold: float, size: float = 0) -> str:
+    return "suspicious" if any(g["share"] >= threshold for g in _groups(row, size)) else "clean"
 
 
-def margin(row: Row, threshold: float) -> float:
+def margin(row: Row, threshold: float, size: float = 0) -> float:
     """How far ``row`` is from ``threshold``, as a factor (> 1: right with room, < 1: wrong).
 
     Clean: the threshold over its largest share. Poisoned: the smaller of its tampered share over
-    the threshold and the threshold over its largest share elsewhere."""
-    hit, wrong = _shares(row)
+    the threshold and the threshold over its largest share elsewhere (groups of at least ``size``)."""
+    hit, wrong = _shares(row, size)
     below = threshold / wrong if wrong > 0 else math.inf
     if not row["poisoned"]:
         return below
     return min(hit / threshold, below)
 
 
-def choose_threshold(rows: Sequence[Row]) -> float:
-    """The region threshold that gets the most of ``rows`` right (ties: the log-middle of the
-    widest gap between shares); ValueError for no rows."""
-    if not rows:
-        raise ValueError("no rows to choose a threshold on")
-    values = sorted({s for r in rows for s in _shares(r) if s > 0})
+def _best_threshold(rows: Sequence[Row], size: float) -> tuple[int, float, float]:
+    """``(rows right, log width of its gap, threshold)`` of the best threshold at group size ``size``."""
+    values = sorted({s for r in rows for s in _shares(r, size) if s > 0})
     if not values:  # no group anywhere: every threshold is as good as the scan's own
-        return ScanConfig.region_threshold
+        t = ScanConfig.region_threshold
+        return sum(right_at(r, t, size) for r in rows), math.inf, t
     # candidate intervals between consecutive shares, with open ends a decade beyond them
     bounds = [values[0] / 10, *values, min(1.0, values[-1] * 10)]
     best: tuple[int, float, float] | None = None
@@ -84,11 +95,43 @@ def choose_threshold(rows: Sequence[Row]) -> float:
         if high <= low:
             continue
         t = math.sqrt(low * high)
-        key = (sum(right_at(r, t) for r in rows), math.log(high / low), t)
+        key = (sum(right_at(r, t, size) for r in rows), math.log(high / low), t)
         if best is None or key[:2] > best[:2]:
             best = key
     assert best is not None
-    return best[2]
+    return best
+
+
+def choose_threshold(rows: Sequence[Row], size: float = 0) -> float:
+    """The region threshold that gets the most of ``rows`` right at group size ``size`` (ties: the
+    log-middle of the widest gap between shares); ValueError for no rows."""
+    if not rows:
+        raise ValueError("no rows to choose a threshold on")
+    return _best_threshold(rows, size)[2]
+
+
+def size_candidates(rows: Sequence[Row]) -> list[float]:
+    """The group sizes tried: the scan's minimum, and the geometric middles between the recorded sizes
+    above it."""
+    least = ScanConfig.min_group
+    sizes = sorted({g["gaussians"] for r in rows for g in r["groups"] if g.get("gaussians", 0) > least})
+    floor = [least, *sizes]
+    return [float(least)] + [math.sqrt(a * b) for a, b in zip(floor[:-1], floor[1:], strict=True) if b > a]
+
+
+def choose_rule(rows: Sequence[Row]) -> tuple[float, float]:
+    """``(threshold, group size)`` that gets the most of ``rows`` right (ties: the smallest size, which
+    drops the fewest groups); ValueError for no rows."""
+    if not rows:
+        raise ValueError("no rows to choose a rule on")
+    best: tuple[tuple[int, float], float, float] | None = None
+    for size in size_candidates(rows):
+        right, _, t = _best_threshold(rows, size)
+        key = (right, -size)
+        if best is None or key > best[0]:
+            best = (key, t, size)
+    assert best is not None
+    return best[1], best[2]
 
 
 def split_scenes(scenes: Sequence[str], first: Sequence[str] = ()) -> tuple[list[str], list[str]]:
@@ -97,24 +140,25 @@ def split_scenes(scenes: Sequence[str], first: Sequence[str] = ()) -> tuple[list
     return half, [s for s in scenes if s not in half]
 
 
-def confusion_at(rows: Sequence[Row], threshold: float) -> dict[str, int]:
-    """Counts at ``threshold``: clean models called clean / suspicious; poisoned models found with
-    the right views / suspicious but naming a wrong view / called clean."""
+def confusion_at(rows: Sequence[Row], threshold: float, size: float = 0) -> dict[str, int]:
+    """Counts at ``threshold`` and group size ``size``: clean models called clean / suspicious;
+    poisoned models found with the right views / suspicious but naming a wrong view / called clean."""
     out = dict.fromkeys(COUNTS, 0)
     for r in rows:
-        suspicious = verdict_at(r, threshold) == "suspicious"
+        suspicious = verdict_at(r, threshold, size) == "suspicious"
         if not r["poisoned"]:
             out["clean_suspicious" if suspicious else "clean_clean"] += 1
         else:
-            out["found" if right_at(r, threshold) else ("wrong_view" if suspicious else "missed")] += 1
+            found = right_at(r, threshold, size)
+            out["found" if found else ("wrong_view" if suspicious else "missed")] += 1
     return out
 
 
 def held_out(rows: Sequence[Row], first: Sequence[str] = ()) -> dict[str, Any]:
-    """Two folds: the threshold chosen on each half of the scenes, judged on the other half.
+    """Two folds: the rule chosen on each half of the scenes, judged on the other half.
 
-    Returns ``{"folds": [{fit, held_out, threshold, confusion}], "confusion": both held-out halves
-    summed, "margins": [{run, scene, poisoned, threshold, margin, right}]}``."""
+    Returns ``{"folds": [{fit, held_out, threshold, min_group, confusion}], "confusion": both held-out
+    halves summed, "margins": [{run, scene, poisoned, threshold, min_group, margin, right}]}``."""
     kept = scored(rows)
     scenes = list(dict.fromkeys(r["scene"] for r in kept))
     a, b = split_scenes(scenes, first)
@@ -125,13 +169,13 @@ def held_out(rows: Sequence[Row], first: Sequence[str] = ()) -> dict[str, Any]:
         test_rows = [r for r in kept if r["scene"] in test]
         if not fit_rows or not test_rows:
             continue
-        t = choose_threshold(fit_rows)
-        counts = confusion_at(test_rows, t)
+        t, m = choose_rule(fit_rows)
+        counts = confusion_at(test_rows, t, m)
         total = {k: total[k] + counts[k] for k in total}
-        folds.append({"fit": fit, "held_out": test, "threshold": t, "confusion": counts})
+        folds.append({"fit": fit, "held_out": test, "threshold": t, "min_group": m, "confusion": counts})
         margins += [
-            {"run": r["run"], "scene": r["scene"], "poisoned": r["poisoned"], "threshold": t,
-             "margin": margin(r, t), "right": right_at(r, t)}
+            {"run": r["run"], "scene": r["scene"], "poisoned": r["poisoned"], "threshold": t, "min_group": m,
+             "margin": margin(r, t, m), "right": right_at(r, t, m)}
             for r in test_rows
         ]  # fmt: skip
     return {"folds": folds, "confusion": total, "margins": margins}
@@ -142,21 +186,26 @@ def calibration_lines(result: dict[str, Any]) -> list[str]:
     if not result["folds"]:
         return ["## Held-out calibration", "", "Needs runs of at least two scenes.", ""]
     lines = [
-        "## Held-out calibration of the region threshold",
+        "## Held-out calibration of the verdict's rule",
         "",
-        "The threshold is chosen on one half of the scenes and judged on the other, then the halves swap "
-        "(failed attacks left out; docs/scan.md).",
+        "The region threshold and the group size (--min-group) are chosen on one half of the scenes and "
+        "judged on the other, then the halves swap (failed attacks left out; docs/scan.md).",
         "",
-        "| fitted on | threshold | judged on | clean → clean | clean → suspicious | found (right views) | "
-        "wrong view | missed |",
-        "|---|--:|---|--:|--:|--:|--:|--:|",
+        "| fitted on | threshold | min group | judged on | clean → clean | clean → suspicious | "
+        "found (right views) | wrong view | missed |",
+        "|---|--:|--:|---|--:|--:|--:|--:|--:|",
     ]
     for f in [*result["folds"], None]:
         c = result["confusion"] if f is None else f["confusion"]
         head = (
-            ["both folds", "–", "every scene"]
+            ["both folds", "–", "–", "every scene"]
             if f is None
-            else [", ".join(f["fit"]), f"{100 * f['threshold']:.2f}%", ", ".join(f["held_out"])]
+            else [
+                ", ".join(f["fit"]),
+                f"{100 * f['threshold']:.2f}%",
+                f"{f.get('min_group', ScanConfig.min_group):.0f}",
+                ", ".join(f["held_out"]),
+            ]
         )
         cells = [c["clean_clean"], c["clean_suspicious"], c["found"], c["wrong_view"], c["missed"]]
         lines.append("| " + " | ".join([*head, *map(str, cells)]) + " |")

@@ -95,7 +95,12 @@ def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> d
         "views_found": len(named_views & poisoned),
         "largest_region": result.groups[0].region.share if result.groups else 0.0,
         "groups": [
-            {"view": g.name, "index": g.view, "share": round(g.region.share, 6), "gaussians": int(g.members.sum())}
+            {
+                "view": g.name,
+                "index": g.view,
+                "share": round(g.region.share, 6),
+                "gaussians": int(g.members.sum()),
+            }
             for g in result.groups
         ],
         "tampered": sorted(tampered),

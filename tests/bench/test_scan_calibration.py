@@ -8,23 +8,30 @@ import pytest
 
 from stealth_ns.bench.scan_calibration import (
     calibration_lines,
+    choose_rule,
     choose_threshold,
     confusion_at,
     held_out,
     margin,
     right_at,
+    size_candidates,
     split_scenes,
+    verdict_at,
 )
 
 
 def row(scene, run, groups, tampered=(), failed=False):
-    """A bench scan row: ``groups`` as (view index, share); poisoned when ``tampered`` names views."""
+    """A bench scan row: ``groups`` as (view index, share) or (view index, share, Gaussians); poisoned
+    when ``tampered`` names views."""
     return {
         "run": f"{scene}/{run}",
         "scene": scene,
         "poisoned": bool(tampered),
         "attack_failed": failed,
-        "groups": [{"view": f"v{i}", "index": i, "share": s} for i, s in groups],
+        "groups": [
+            {"view": f"v{g[0]}", "index": g[0], "share": g[1], **({"gaussians": g[2]} if len(g) > 2 else {})}
+            for g in groups
+        ],
         "tampered": list(tampered),
     }
 
@@ -86,6 +93,35 @@ def test_held_out_folds_fit_on_one_half_and_judge_the_other():
         r["run"] for r in rows[:6]
     }
     text = "\n".join(calibration_lines(result))
-    assert "| s1, s3 | " in text and "| both folds | – | every scene | 2 | 1 | 3 | 0 | 0 |" in text
+    assert "| s1, s3 | " in text and "| both folds | – | – | every scene | 2 | 1 | 3 | 0 | 0 |" in text
     assert "| s3/clean | clean | 2.00% | 0.67x | no |" in text  # on the wrong side: below 1
     assert held_out(rows[:2])["folds"] == []  # one scene: nothing held out
+
+
+def test_the_group_size_is_chosen_with_the_threshold():
+    # a clean capture's floater (10 Gaussians) covers more of its view than a stealthy attack's poison
+    rows = [
+        row("a", "clean", [(0, 0.02, 10)]),
+        row("a", "clean2", [(0, 0.004, 8)]),
+        row("a", "p", [(1, 0.0165, 400)], tampered=[1]),
+        row("a", "p2", [(1, 0.05, 2000), (3, 0.002, 6)], tampered=[1]),
+    ]
+    # the share alone cannot be right on all four ...
+    assert max(sum(right_at(r, t) for r in rows) for t in (0.003, 0.005, 0.0145, 0.02, 0.06)) == 3
+    # ... the share and the size can: groups of fewer than ~63 Gaussians (sqrt(10 * 400)) do not count
+    assert size_candidates(rows) == pytest.approx(
+        [5, math.sqrt(5 * 6), math.sqrt(6 * 8), math.sqrt(80), math.sqrt(4000), math.sqrt(800000)]
+    )
+    t, m = choose_rule(rows)
+    assert m == pytest.approx(math.sqrt(10 * 400)) and sum(right_at(r, t, m) for r in rows) == 4
+    assert confusion_at(rows, t, m) == {
+        "clean_clean": 2,
+        "clean_suspicious": 0,
+        "found": 2,
+        "wrong_view": 0,
+        "missed": 0,
+    }
+    # where the share alone is right, the scan's own group size is kept
+    assert choose_rule(rows[1:])[1] == 5
+    # a group whose size was not recorded (an older scan-results.json) always counts
+    assert verdict_at(row("a", "old", [(0, 0.02)]), 0.01, 1e9) == "suspicious"
