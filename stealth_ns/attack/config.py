@@ -103,6 +103,12 @@ class AttackConfig:
     come nearer than seen poison. On forward-facing captures the only unseen place is the
     stretch just in front of the poisoned camera, before the other frusta overlap (facing with
     ``t_min_fraction`` 0.075: 10.11 dB without it, 44.95 dB with it)."""
+    depth_floor: float = 0.0
+    """An adaptive variant against camera-proximity (docs/stealth.md, "Adaptive attacks"): no poison
+    Gaussian is placed nearer a training camera that has it in its image than this share of that
+    camera's median rendered scene depth -- camera-proximity's own measure, which ``defend`` cuts at
+    0.15 and ``scan`` flags below 0.3. An illusion ray without such a sample gets no poison Gaussian.
+    0 = off (the paper's attack)."""
     t_min: float | None = None
     """Absolute near distance in nerfstudio's rescaled scene units; overrides ``t_min_fraction``
     (the paper's 0.3 is in Mip-NeRF 360's COLMAP units, ~4x ours)."""

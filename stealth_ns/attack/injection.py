@@ -9,7 +9,9 @@ density breaking ties; with ``t_min_fraction`` above ``unseen_t_min_fraction``, 
 innocent camera sees are searched from the nearer bound. Two stealth-aware variants
 (docs/stealth.md): with support views (``support_views``) the view-aware search prefers the
 samples the poisoned view's neighbours see; ``placement="surface"`` puts each poison Gaussian on
-the surface its pixel shows. The model appends them (``StealthSplatModel.append_gaussians``).
+the surface its pixel shows. An adaptive variant (``depth_floor``) keeps every poison Gaussian at
+least a share of each camera's scene depth away from the cameras that have it in view. The model
+appends them (``StealthSplatModel.append_gaussians``).
 """
 
 from __future__ import annotations
@@ -28,8 +30,16 @@ from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.density import DensityGrid, gaussian_kde_grid, voxel_density
 from stealth_ns.attack.ray_search import RaySearchResult, min_density_points, pixel_rays, zdepth_to_ray_t
 from stealth_ns.attack.record import Injection, PoisonView
-from stealth_ns.attack.visibility import SURFACE_ALPHA, CameraDepths, SeenPenalty, count_seeing_cameras
+from stealth_ns.attack.visibility import (
+    SURFACE_ALPHA,
+    CameraDepths,
+    FlooredPenalty,
+    SeenPenalty,
+    count_seeing_cameras,
+    proximity_cameras,
+)
 from stealth_ns.raster.cpp_backend import load_extension
+from stealth_ns.raster.projection import viewmat_from_c2w
 
 # Pixels whose rendered opacity is below SURFACE_ALPHA see no reconstructed surface (sky, empty
 # background): their ray is searched up to where it leaves the density grid instead.
@@ -53,6 +63,9 @@ class PoisonPlacement:
     seen_by: dict[str, float] = field(default_factory=dict)
     # support views: view name -> mean number of its support views that see a placed poison Gaussian
     support_seen: dict[str, float] = field(default_factory=dict)
+    # depth_floor > 0: view name -> illusion pixels left without poison, no sample of their ray being
+    # at the floor from every camera that has it in view
+    below_floor: dict[str, int] = field(default_factory=dict)
     grid: DensityGrid | None = None
     kde: DensityGrid | None = None
     timings: dict[str, float] = field(default_factory=dict)
@@ -166,6 +179,38 @@ def on_surface(origins: Tensor, dirs: Tensor, t_max: Tensor, t_min: Tensor) -> R
     return RaySearchResult(origins + t[:, None] * dirs, t, zero, valid, zero)
 
 
+def _proximity(
+    cfg: AttackConfig,
+    views: list[PoisonView],
+    depths: list[Tensor],
+    alphas: list[Tensor],
+    groups: Sequence[CameraDepths | None],
+    centre: Tensor,
+) -> CameraDepths | None:
+    """``depth_floor``: every training camera that might have poison in view -- the poisoned views
+    and the cameras of ``groups`` (innocent, support) -- as :func:`proximity_cameras` at the floor,
+    each camera's scene depth its median rendered depth; None without a floor."""
+    if cfg.depth_floor <= 0.0:
+        return None
+    viewmats, Ks, sizes, scene_depths = [], [], [], []
+    for view, depth, alpha in zip(views, depths, alphas, strict=True):
+        viewmats.append(viewmat_from_c2w(view.c2w[None].float()))
+        Ks.append(torch.tensor([[[view.fx, 0.0, view.cx], [0.0, view.fy, view.cy], [0.0, 0.0, 1.0]]]))
+        sizes.append(tuple(depth.shape))
+        fallback = float(torch.linalg.norm(centre - view.c2w[:3, 3].float()))
+        scene_depths.append(median_scene_depth(depth, alpha, fallback))
+    for group in (g for g in groups if g is not None):
+        viewmats.append(group.viewmats.float())
+        Ks.append(group.Ks.float())
+        for j, (depth, alpha) in enumerate(zip(group.depths, group.alphas, strict=True)):
+            sizes.append(tuple(depth.shape))
+            eye = -group.viewmats[j, :3, :3].float().T @ group.viewmats[j, :3, 3].float()
+            scene_depths.append(median_scene_depth(depth, alpha, float(torch.linalg.norm(centre - eye))))
+    return proximity_cameras(
+        torch.cat(viewmats), torch.cat(Ks).float(), sizes, torch.tensor(scene_depths), cfg.depth_floor
+    )
+
+
 def median_scene_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
     """Median rendered z-depth (scene units) of the pixels that show a surface (``fallback``,
     e.g. the distance to the density grid's centre, when none does)."""
@@ -212,12 +257,19 @@ def place_poison(
     near_unseen: dict[str, float] = {}
     unseen_share: dict[str, float] = {}
     support_seen: dict[str, float] = {}
+    below_floor: dict[str, int] = {}
     centre = torch.as_tensor((grid.origin + grid.upper) / 2, dtype=torch.float32)
     t1 = time.perf_counter()
     load_extension()  # the search's and the counts' kernels: loaded by the renders on the CPU, not on CUDA
     timings["cpu_kernels_load_s"] = time.perf_counter() - t1
+    near_cameras = _proximity(cfg, views, depths, alphas, [innocent, *(supports or [])], centre)
     for i, (view, depth, alpha) in enumerate(zip(views, depths, alphas, strict=True)):
+        penalty: Callable[[Tensor], Tensor] | None
         penalty = _seen_penalty(cfg, innocent, supports[i] if supports else None, count)
+        if near_cameras is not None and cfg.placement != "surface":
+            # one camera too near outweighs every camera that can see the sample
+            weight = 1 + sum(len(g) for g in (innocent, supports[i] if supports else None) if g is not None)
+            penalty = FlooredPenalty(penalty, near_cameras, weight, count)
         rows, cols, origins, dirs, cos, t_max = _illusion_rays(view, depth, alpha, lower, upper)
         scene_depth = median_scene_depth(
             depth, alpha, fallback=float(torch.linalg.norm(centre - view.c2w[:3, 3]))
@@ -247,6 +299,10 @@ def place_poison(
                 use = torch.as_tensor(unseen.valid) & (torch.as_tensor(unseen.penalty) == 0)
                 found = found.where(use, unseen)
         valid = torch.as_tensor(found.valid)
+        if near_cameras is not None:  # the floor is a hard bound: rays whose best sample breaks it get none
+            below = valid & (count(torch.as_tensor(found.points).float(), near_cameras, margin=0.0) > 0)
+            below_floor[view.name] = int(below.sum())
+            valid = valid & ~below
         pts = torch.as_tensor(found.points)[valid]
         t = torch.as_tensor(found.t)[valid]
         zdepth = t * cos[valid]
@@ -275,6 +331,7 @@ def place_poison(
         unseen_fraction=unseen_share,
         seen_by=seen,
         support_seen=support_seen,
+        below_floor=below_floor,
         grid=grid,
         kde=kde,
         timings=timings,
@@ -299,6 +356,7 @@ def injection_entry(
         poison_unseen_fraction=placement.unseen_fraction,
         support_views=support_views or {},
         support_views_seeing_poison=placement.support_seen,
+        rays_below_depth_floor_per_view=placement.below_floor,
         density_grid={
             "shape": list(placement.grid.shape),
             "voxel_size": placement.grid.voxel_size,

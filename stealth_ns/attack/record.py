@@ -94,6 +94,8 @@ class Injection:
     # support_views > 0: poisoned view -> its support views, and how many see a poison Gaussian (mean)
     support_views: dict[str, list[str]] = field(default_factory=dict)
     support_views_seeing_poison: dict[str, float] = field(default_factory=dict)
+    # depth_floor > 0: illusion pixels left without poison, their ray having no sample at the floor
+    rays_below_depth_floor_per_view: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass

@@ -168,6 +168,13 @@ def _check_density_and_search(cfg: AttackConfig, sp: OptionSpelling) -> None:
     _real(
         cfg,
         sp,
+        "depth_floor",
+        "in [0, 1) (a share of each camera's median rendered depth; 0 = off)",
+        lambda v: 0.0 <= v < 1.0,
+    )
+    _real(
+        cfg,
+        sp,
         "t_min",
         "None or > 0 (scene units, in front of the camera)",
         lambda v: v > 0.0,
@@ -221,6 +228,7 @@ _CHECKED = frozenset(
         "support_views",
         "t_min_fraction",
         "unseen_t_min_fraction",
+        "depth_floor",
         "t_min",
         "samples_per_ray",
         "placement",

@@ -159,3 +159,38 @@ class SeenPenalty:
         if self.support is not None:
             cost += len(self.support) - self.count(pts, self.support, margin=self.margin)
         return cost
+
+
+def proximity_cameras(
+    viewmats: Tensor, Ks: Tensor, sizes: list[tuple[int, int]], scene_depths: Tensor, floor: float
+) -> CameraDepths:
+    """Cameras for counting, with :func:`count_seeing_cameras` at margin 0, how many have a point in
+    their image nearer than ``floor`` times their scene depth (camera-proximity's measure, occlusion
+    ignored): each camera "shows a surface" at the constant depth ``floor * scene_depths[j]``.
+
+    Args:
+        viewmats: ``[J, 4, 4]`` world-to-camera (OpenCV); Ks: ``[J, 3, 3]`` pixels.
+        sizes: per camera ``(height, width)`` in pixels.
+        scene_depths: ``[J]`` each camera's median rendered z-depth (scene units, > 0).
+        floor: the share of the scene depth, in ``[0, 1)``.
+    """
+    depths = [torch.full((h, w), floor * float(d)) for (h, w), d in zip(sizes, scene_depths, strict=True)]
+    return CameraDepths(viewmats, Ks, depths, [torch.ones(h, w) for h, w in sizes])
+
+
+@dataclass(frozen=True)
+class FlooredPenalty:
+    """A search cost with a depth floor: ``seen``'s cost (0 without one) plus ``weight`` for every
+    camera of ``near`` (:func:`proximity_cameras`) the point is too near. With ``weight`` above any
+    cost ``seen`` can give, a sample below the floor is taken only where the whole ray is; its cost
+    is then at least ``weight``."""
+
+    seen: SeenPenalty | None
+    near: CameraDepths
+    weight: int
+    count: Callable[..., Tensor] = count_seeing_cameras
+
+    def __call__(self, pts: Tensor) -> Tensor:
+        zero = torch.zeros(pts.shape[:-1], dtype=torch.int32, device=pts.device)
+        cost = self.seen(pts) if self.seen is not None else zero
+        return cost + self.weight * self.count(pts, self.near, margin=0.0)

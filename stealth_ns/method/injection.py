@@ -137,7 +137,7 @@ def poison_placement(source: InjectionSource) -> PoisonPlacement:
     cfg = source.config.attack
     model = source.model
     depths, alphas = render_depths(source, [v.index for v in source.poison_views])
-    innocent = innocent_cameras(source) if cfg.placement in CAMERA_PLACEMENTS else None
+    innocent = innocent_cameras(source) if cfg.placement in CAMERA_PLACEMENTS or cfg.depth_floor > 0 else None
     supports = None
     if source.support_views:
         supports = [cameras_with_depth(source, source.support_views[v.index]) for v in source.poison_views]

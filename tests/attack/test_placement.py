@@ -201,7 +201,9 @@ def _opengl_c2w(eye: tuple[float, float, float], looking_back: bool = False) -> 
     return c2w
 
 
-def _place(innocent_eye, looking_back=False, innocent_alpha=1.0, near_plane=0.0):
+def _place(
+    innocent_eye, looking_back=False, innocent_alpha=1.0, near_plane=0.0, innocent_depth=5.0, **cfg_kw
+):
     """One illusion pixel at the centre of a camera at the origin looking at a wall at z = -5
     (median depth 5; t_min_fraction 0.075: t_min 0.375, unseen bound 0.05), one innocent camera
     (90° field of view)."""
@@ -223,12 +225,12 @@ def _place(innocent_eye, looking_back=False, innocent_alpha=1.0, near_plane=0.0)
     innocent = CameraDepths(
         viewmats=viewmat_from_c2w(c2w[None]),
         Ks=torch.tensor([[[10.0, 0.0, size / 2], [0.0, 10.0, size / 2], [0.0, 0.0, 1.0]]]),
-        depths=[torch.full((size, size), 5.0)],
+        depths=[torch.full((size, size), innocent_depth)],
         alphas=[torch.full((size, size), innocent_alpha)],
     )
     rng = np.random.default_rng(0)
     wall = np.c_[rng.uniform(-3, 3, (400, 2)), np.full(400, -5.0)]
-    cfg = AttackConfig(outlier_removal=False, samples_per_ray=2000, t_min_fraction=0.075)
+    cfg = AttackConfig(outlier_removal=False, samples_per_ray=2000, t_min_fraction=0.075, **cfg_kw)
     depth, alpha = torch.full((size, size), 5.0), torch.ones(size, size)
     return place_poison(wall, np.ones(400), [view], [depth], [alpha], cfg, innocent, near_plane=near_plane)
 
@@ -265,6 +267,39 @@ def test_view_aware_keeps_poison_beyond_the_near_plane():
     # the paper's range too: a near bound below 2 near planes is raised to them
     out = _place((0.0, 0.0, -10.0), looking_back=True, innocent_alpha=0.0, near_plane=0.3)
     assert -float(out.means[0, 2]) >= 0.6 - 1e-6
+
+
+def _frustum_ratio(point: torch.Tensor, eye: tuple[float, float, float], scene_depth: float) -> float:
+    """camera-proximity's ratio of ``point`` for an OpenGL camera at ``eye`` looking down -Z (90° fov)."""
+    z = float(eye[2] - point[2])
+    inside = z > 0 and abs(float(point[0] - eye[0])) < z and abs(float(point[1] - eye[1])) < z
+    return z / scene_depth if inside else math.inf
+
+
+@pytest.mark.parametrize("placement", ["view-aware", "kde"])
+def test_depth_floor_keeps_poison_away_from_every_camera_that_has_it_in_view(placement):
+    # without a floor, view-aware poison hides just in front of the poisoned camera (ratio < 0.04)
+    free = _place((0.2, 0.0, 0.0), placement=placement)
+    assert -float(free.means[0, 2]) < 0.2 or placement == "kde"
+    # with it, it sits at >= 0.3 of the scene depth (5) from both cameras, where the innocent one sees it
+    out = _place((0.2, 0.0, 0.0), placement=placement, depth_floor=0.3)
+    point = out.means[0]
+    for eye in ((0.0, 0.0, 0.0), (0.2, 0.0, 0.0)):
+        assert _frustum_ratio(point, eye, 5.0) >= 0.3
+    assert -float(point[2]) <= 5.0 and out.below_floor == {"poisoned": 0}
+    if placement == "view-aware":
+        assert out.seen_by["poisoned"] == 1  # the price of the floor: a view that sees the poison
+
+
+def test_depth_floor_drops_rays_that_cannot_meet_it():
+    # the innocent camera's scene is 100 away: 0.3 of it (30) lies beyond the wall the ray ends on
+    out = _place((0.2, 0.0, 0.0), innocent_depth=100.0, depth_floor=0.3)
+    assert (
+        out.means.shape == (0, 3) and out.below_floor == {"poisoned": 1} and out.per_view == {"poisoned": 0}
+    )
+    # a camera that does not have the ray in view does not bind: looking away, behind the wall
+    out = _place((0.0, 0.0, -10.0), innocent_depth=100.0, depth_floor=0.3)
+    assert out.means.shape == (1, 3) and -float(out.means[0, 2]) >= 1.5
 
 
 def test_random_init_is_refused_with_what_to_run(tiny_orbit_scene):

@@ -118,6 +118,32 @@ def test_support_views_spread_the_poison_over_several_views(tiny_orbit_scene):
     assert spread[3] >= 2.0 and spread[3] > 1.5 * spread[0], spread
 
 
+def test_depth_floor_moves_the_poison_out_of_camera_proximitys_reach(tiny_orbit_scene):
+    """The adaptive variant against camera-proximity: at the injection no poison Gaussian sits nearer a
+    camera that has it in view than the floor's share of that camera's scene depth (the defence's
+    own ratio, measured on the model after the injection); the default attack's poison does."""
+    from stealth_ns.defences.signals import camera_geometry
+
+    ratios = {}
+    for floor in (0.0, 0.3):
+        pipeline = build_pipeline(tiny_orbit_scene, AttackConfig(depth_floor=floor))
+        Stepper(pipeline).step(0)  # the injection runs before step 0
+        model = pipeline.model
+        geometry = camera_geometry(model, pipeline.datamanager.train_dataset.cameras)
+        means = model.means.detach().cpu().numpy()[model.poison_mask.cpu().numpy()]
+        ratios[floor] = frustum_depth_ratios(
+            means, geometry.viewmats, geometry.Ks, geometry.sizes, geometry.scene_depths
+        )
+        injection = pipeline.record.injection
+        if floor:
+            (dropped,) = injection.rays_below_depth_floor_per_view.values()
+            assert injection.n_poison_gaussians + dropped == int(pipeline.poison_views[0].mask.sum())
+        else:
+            assert injection.rays_below_depth_floor_per_view == {}
+    assert np.median(ratios[0.0]) < 0.15  # the default: in front of its camera, where the defence cuts
+    assert ratios[0.3].size and np.quantile(ratios[0.3], 0.01) >= 0.27, np.quantile(ratios[0.3], [0, 0.01, 0.5])
+
+
 def test_the_record_keeps_the_support_views_images(tmp_path):
     view = SimpleNamespace(
         index=0,
