@@ -109,6 +109,15 @@ class AttackConfig:
     camera's median rendered scene depth -- camera-proximity's own measure, which ``defend`` cuts at
     0.15 and ``scan`` flags below 0.3. An illusion ray without such a sample gets no poison Gaussian.
     0 = off (the paper's attack)."""
+    proximity_weight: float = 0.0
+    """A white-box adaptive variant (docs/stealth.md, "Adaptive attacks"): weight of a training loss on
+    the poison Gaussians from the injection on -- how far each one's camera-proximity ratio lies below
+    ``proximity_target``, relative to it, averaged over up to 8192 of them drawn each step
+    (:mod:`stealth_ns.attack.proximity_term`). It trains the poison out of the defence's reach while
+    the photometric loss keeps the illusion. 0 = off (the paper's attack)."""
+    proximity_target: float = 0.3
+    """The ratio ``proximity_weight`` pushes the poison to: the scan's flag line (0.3), twice defend's
+    cut (0.15)."""
     t_min: float | None = None
     """Absolute near distance in nerfstudio's rescaled scene units; overrides ``t_min_fraction``
     (the paper's 0.3 is in Mip-NeRF 360's COLMAP units, ~4x ours)."""

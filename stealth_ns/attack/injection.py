@@ -211,6 +211,31 @@ def _proximity(
     )
 
 
+def _floored(
+    cfg: AttackConfig,
+    penalty: SeenPenalty | None,
+    near: CameraDepths | None,
+    *seeing: CameraDepths | None,
+) -> Callable[[Tensor], Tensor] | None:
+    """``penalty`` with the depth floor's cost (:class:`FlooredPenalty`) when there is one: a camera too
+    near outweighs all the ``seeing`` cameras (innocent, support) that ``penalty`` counts."""
+    if near is None or cfg.placement == "surface":
+        return penalty
+    count = penalty.count if penalty is not None else count_seeing_cameras
+    return FlooredPenalty(penalty, near, 1 + sum(len(g) for g in seeing if g is not None), count)
+
+
+def _seeing(
+    points: Tensor, margin: float, count: Callable[..., Tensor], *groups: CameraDepths | None
+) -> list[Tensor | None]:
+    """Per camera group, how many of its cameras see each of ``points`` (None: no such cameras, or
+    no points)."""
+    return [
+        count(points, g, margin=margin) if g is not None and len(g) and points.shape[0] else None
+        for g in groups
+    ]
+
+
 def median_scene_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
     """Median rendered z-depth (scene units) of the pixels that show a surface (``fallback``,
     e.g. the distance to the density grid's centre, when none does)."""
@@ -253,23 +278,17 @@ def place_poison(
     lower = torch.as_tensor(grid.origin, dtype=torch.float32)
     upper = torch.as_tensor(grid.upper, dtype=torch.float32)
     out_means, out_colors, out_scales = [], [], []
-    per_view, invalid, near, seen = {}, {}, {}, {}
-    near_unseen: dict[str, float] = {}
-    unseen_share: dict[str, float] = {}
-    support_seen: dict[str, float] = {}
-    below_floor: dict[str, int] = {}
+    out = PoisonPlacement(
+        torch.zeros(0, 3), torch.zeros(0, 3), torch.zeros(0), grid=grid, kde=kde, timings=timings
+    )
     centre = torch.as_tensor((grid.origin + grid.upper) / 2, dtype=torch.float32)
     t1 = time.perf_counter()
     load_extension()  # the search's and the counts' kernels: loaded by the renders on the CPU, not on CUDA
     timings["cpu_kernels_load_s"] = time.perf_counter() - t1
     near_cameras = _proximity(cfg, views, depths, alphas, [innocent, *(supports or [])], centre)
     for i, (view, depth, alpha) in enumerate(zip(views, depths, alphas, strict=True)):
-        penalty: Callable[[Tensor], Tensor] | None
-        penalty = _seen_penalty(cfg, innocent, supports[i] if supports else None, count)
-        if near_cameras is not None and cfg.placement != "surface":
-            # one camera too near outweighs every camera that can see the sample
-            weight = 1 + sum(len(g) for g in (innocent, supports[i] if supports else None) if g is not None)
-            penalty = FlooredPenalty(penalty, near_cameras, weight, count)
+        support = supports[i] if supports else None
+        penalty = _floored(cfg, _seen_penalty(cfg, innocent, support, count), near_cameras, innocent, support)
         rows, cols, origins, dirs, cos, t_max = _illusion_rays(view, depth, alpha, lower, upper)
         scene_depth = median_scene_depth(
             depth, alpha, fallback=float(torch.linalg.norm(centre - view.c2w[:3, 3]))
@@ -293,49 +312,32 @@ def place_poison(
             found = search(torch.clamp(drawn, min=t_min))
         if cfg.placement == "view-aware" and penalty is not None:
             t_unseen = min(t_min, cfg.unseen_t_min_fraction * scene_depth)
-            near_unseen[view.name] = t_unseen
+            out.t_min_unseen[view.name] = t_unseen
             if t_unseen < t_min:  # equal bounds (the defaults): the first search already prefers unseen
                 unseen = search(torch.clamp(drawn, min=t_unseen))
                 use = torch.as_tensor(unseen.valid) & (torch.as_tensor(unseen.penalty) == 0)
                 found = found.where(use, unseen)
         valid = torch.as_tensor(found.valid)
+        out.invalid_rays[view.name], out.t_min[view.name] = int((~valid).sum()), t_min
         if near_cameras is not None:  # the floor is a hard bound: rays whose best sample breaks it get none
             below = valid & (count(torch.as_tensor(found.points).float(), near_cameras, margin=0.0) > 0)
-            below_floor[view.name] = int(below.sum())
-            valid = valid & ~below
+            out.below_floor[view.name], valid = int(below.sum()), valid & ~below
         pts = torch.as_tensor(found.points)[valid]
-        t = torch.as_tensor(found.t)[valid]
-        zdepth = t * cos[valid]
+        zdepth = torch.as_tensor(found.t)[valid] * cos[valid]
         out_means.append(pts)
         out_colors.append(view.target[rows[valid], cols[valid]].float())
         out_scales.append(cfg.poison_scale * zdepth / math.sqrt(view.fx * view.fy))
-        per_view[view.name] = int(valid.sum())
-        invalid[view.name] = int((~valid).sum())
-        near[view.name] = t_min
-        if innocent is not None and len(innocent) and bool(valid.any()):
-            seeing = count(pts, innocent, margin=cfg.visibility_margin)
-            seen[view.name] = float(seeing.float().mean())
-            unseen_share[view.name] = float((seeing == 0).float().mean())
-        if supports and len(supports[i]) and bool(valid.any()):
-            seeing = count(pts, supports[i], margin=cfg.visibility_margin)
-            support_seen[view.name] = float(seeing.float().mean())
+        out.per_view[view.name] = int(valid.sum())
+        seeing = _seeing(pts, cfg.visibility_margin, count, innocent, support)
+        if seeing[0] is not None:
+            out.seen_by[view.name] = float(seeing[0].float().mean())
+            out.unseen_fraction[view.name] = float((seeing[0] == 0).float().mean())
+        if seeing[1] is not None:
+            out.support_seen[view.name] = float(seeing[1].float().mean())
     timings.update(ray_search_s=time.perf_counter() - t1, visibility_s=count.seconds)
-    return PoisonPlacement(
-        means=torch.cat(out_means) if out_means else torch.zeros(0, 3),
-        colors=torch.cat(out_colors) if out_colors else torch.zeros(0, 3),
-        scales=torch.cat(out_scales) if out_scales else torch.zeros(0),
-        per_view=per_view,
-        invalid_rays=invalid,
-        t_min=near,
-        t_min_unseen=near_unseen,
-        unseen_fraction=unseen_share,
-        seen_by=seen,
-        support_seen=support_seen,
-        below_floor=below_floor,
-        grid=grid,
-        kde=kde,
-        timings=timings,
-    )
+    if out_means:
+        out.means, out.colors, out.scales = torch.cat(out_means), torch.cat(out_colors), torch.cat(out_scales)
+    return out
 
 
 def injection_entry(

@@ -172,6 +172,19 @@ def _check_density_and_search(cfg: AttackConfig, sp: OptionSpelling) -> None:
         "in [0, 1) (a share of each camera's median rendered depth; 0 = off)",
         lambda v: 0.0 <= v < 1.0,
     )
+    _real(cfg, sp, "proximity_weight", ">= 0 (0 = off)", lambda v: v >= 0.0)
+    if cfg.proximity_weight > 0.0 and not cfg.density_guided:
+        raise StealthNSError(
+            f"{sp.name('proximity_weight')} {cfg.proximity_weight:g} trains the poison Gaussians: it needs "
+            f"{option_words('density_guided', True, sp)}"
+        )
+    _real(
+        cfg,
+        sp,
+        "proximity_target",
+        "in (0, 1) (a share of each camera's median rendered depth)",
+        lambda v: 0.0 < v < 1.0,
+    )
     _real(
         cfg,
         sp,
@@ -229,6 +242,8 @@ _CHECKED = frozenset(
         "t_min_fraction",
         "unseen_t_min_fraction",
         "depth_floor",
+        "proximity_weight",
+        "proximity_target",
         "t_min",
         "samples_per_ray",
         "placement",

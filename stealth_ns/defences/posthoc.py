@@ -30,7 +30,8 @@ import torch
 from stealth_ns.defences import scores
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.defences.detection import prune_mask_threshold
-from stealth_ns.defences.signals import FineTune, camera_geometry, gradient_energy_matrix, view_weight_matrix
+from stealth_ns.defences.signals import FineTune, gradient_energy_matrix, view_weight_matrix
+from stealth_ns.method.camera_geometry import camera_geometry
 from stealth_ns.method.model import TRAINABLE, StealthSplatModel
 
 DESCRIPTIONS: dict[str, str] = {

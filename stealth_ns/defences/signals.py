@@ -8,9 +8,9 @@ Both return a ``[N, V]`` matrix (N Gaussians, V training views) that
 * :func:`gradient_energy_matrix` -- training dynamics: during a short fine-tune on the training
   images, how much of each Gaussian's gradient comes from each view.
 
-and :func:`camera_geometry`, the cameras with the depth of what each shows, from which
-:func:`stealth_ns.defences.scores.frustum_depth_ratios` measures how close a Gaussian floats in front
-of a camera (camera-proximity).
+and, from :mod:`stealth_ns.method.camera_geometry`, the cameras with the depth of what each shows, from
+which :func:`stealth_ns.defences.scores.frustum_depth_ratios` measures how close a Gaussian floats in
+front of a camera (camera-proximity).
 
 Poison is meant to be seen from one view, so its support and its gradient concentrate in it.
 """
@@ -24,9 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from stealth_ns.attack.injection import median_scene_depth
 from stealth_ns.method.model import POISON_TAG, StealthSplatModel
-from stealth_ns.raster.projection import viewmat_from_c2w
 
 
 def _progress(total: int, desc: str):
@@ -48,47 +46,6 @@ def view_weight_matrix(model: StealthSplatModel, cameras: object, desc: str = "v
             out[:, v] = model.blend_weights(cameras[v : v + 1]).cpu().numpy()
             bar.update(1)
     return out
-
-
-@dataclass(frozen=True)
-class CameraGeometry:
-    """The training cameras as :func:`stealth_ns.defences.scores.frustum_depth_ratios` reads them."""
-
-    viewmats: np.ndarray
-    """``[V, 4, 4]`` world-to-camera (OpenCV)."""
-    Ks: np.ndarray
-    """``[V, 3, 3]`` intrinsics (pixels)."""
-    sizes: np.ndarray
-    """``[V, 2]`` image width and height (pixels)."""
-    scene_depths: np.ndarray
-    """``[V]`` median rendered z-depth of the pixels that show a surface (scene units)."""
-
-
-def camera_matrices(cameras: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(viewmats [V, 4, 4] world-to-camera OpenCV, Ks [V, 3, 3], sizes [V, 2] width and height)``
-    of a nerfstudio ``Cameras``, float64 numpy, as :func:`stealth_ns.defences.scores.frustum_depth_ratios`
-    reads them."""
-    return (
-        viewmat_from_c2w(cameras.camera_to_worlds.float()).double().cpu().numpy(),
-        cameras.get_intrinsics_matrices().double().cpu().numpy(),
-        torch.stack([cameras.width[:, 0], cameras.height[:, 0]], dim=1).double().cpu().numpy(),
-    )
-
-
-@torch.no_grad()
-def camera_geometry(model: StealthSplatModel, cameras: object, desc: str = "scene depth") -> CameraGeometry:
-    """The cameras of ``cameras`` (V views) with each one's median rendered depth. A view that shows
-    no surface takes the median of the other views' (1.0 scene unit when none shows one)."""
-    depths = np.full(len(cameras), np.nan)
-    with _progress(len(cameras), desc) as bar:
-        for v in range(len(cameras)):
-            out = model.render_view(cameras[v : v + 1])
-            depths[v] = median_scene_depth(out["depth"][..., 0], out["accumulation"][..., 0], np.nan)
-            bar.update(1)
-    known = depths[np.isfinite(depths)]
-    depths[~np.isfinite(depths)] = float(np.median(known)) if known.size else 1.0
-    viewmats, ks, sizes = camera_matrices(cameras)
-    return CameraGeometry(viewmats=viewmats, Ks=ks, sizes=sizes, scene_depths=depths)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
@@ -30,6 +31,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.attack.poison_views import build_poison_views, training_target
+from stealth_ns.attack.proximity_term import draw_points, proximity_hinge
 from stealth_ns.attack.record import INJECTION_FILES, AttackRecord, PoisonView
 from stealth_ns.attack.validation import validate_attack_config
 from stealth_ns.attack.views import nearest_views
@@ -41,6 +43,7 @@ from stealth_ns.foundation.fingerprint import dataset_fingerprint, record_finger
 from stealth_ns.foundation.json_io import json_safe
 from stealth_ns.images.io import to_uint8
 from stealth_ns.method.attack_metrics import attack_metrics
+from stealth_ns.method.camera_geometry import CameraGeometry, camera_geometry
 from stealth_ns.method.checkpoints import checkpoint_mismatch
 from stealth_ns.method.datamanager import NoiseSpec, StealthDataManager, dataset_image_names
 from stealth_ns.method.injection import inject_poison
@@ -83,6 +86,7 @@ class StealthPipeline(VanillaPipeline):
         self._loaded_step = -1
         self._saved_state: dict[str, Any] = {}  # the extra state of a loaded checkpoint
         self.stealth_attack = StealthAttackPanel(self)  # the viewer's panel; inert without a viewer
+        self._proximity_cameras: CameraGeometry | None = None  # the white-box term's, once it applies
         cfg = config.attack
         if self.test_mode == "inference":  # ns-viewer / ns-export: no training data needed
             from stealth_ns.method.export import install_export_hook
@@ -214,6 +218,47 @@ class StealthPipeline(VanillaPipeline):
                 iters=(self.injection_step,),
             )
         ]
+
+    def get_train_loss_dict(self, step: int) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+        """nerfstudio's, plus the white-box term ``poison_proximity`` (``proximity_weight``) once poison
+        Gaussians exist."""
+        applies = self._proximity_applies()  # its cameras' renders before the step's own forward pass
+        outputs, losses, metrics = super().get_train_loss_dict(step)
+        if applies:
+            losses["poison_proximity"] = self._proximity_term(step)
+        return outputs, losses, metrics
+
+    def _proximity_applies(self) -> bool:
+        """Whether the white-box term applies now (on, after the injection, poison left); the first
+        time, every training camera's median rendered depth is measured for it (once per process)."""
+        cfg = self.config.attack
+        if not cfg.enabled or cfg.proximity_weight <= 0.0 or self.record is None or not self.record.injection:
+            return False
+        if not bool(self.model.poison_mask.any()):
+            return False
+        if self._proximity_cameras is None:
+            cameras = self.datamanager.train_dataset.cameras
+            self._proximity_cameras = camera_geometry(self.model, cameras, desc="scene depth")
+        return True
+
+    def _proximity_term(self, step: int) -> torch.Tensor:
+        """``proximity_weight`` times :func:`~stealth_ns.attack.proximity_term.proximity_hinge` of the
+        poison Gaussians (a seeded draw of them per step) against every training camera."""
+        cfg, geometry = self.config.attack, self._proximity_cameras
+        assert geometry is not None
+        poison = self.model.poison_mask.reshape(-1).nonzero().flatten()
+        drawn = draw_points(poison.numel(), step, cfg.seed)
+        means = self.model.means[poison if drawn is None else poison[drawn.to(poison.device)]]
+        as_tensor = functools.partial(torch.as_tensor, device=means.device, dtype=means.dtype)
+        hinge = proximity_hinge(
+            means,
+            as_tensor(geometry.viewmats),
+            as_tensor(geometry.Ks),
+            as_tensor(geometry.sizes),
+            as_tensor(geometry.scene_depths),
+            cfg.proximity_target,
+        )
+        return cfg.proximity_weight * hinge
 
     # ------------------------------------------------------------------ checkpoints and resuming
     def get_extra_state(self) -> dict[str, str]:

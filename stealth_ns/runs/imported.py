@@ -27,13 +27,13 @@ from stealth_ns.attack.config import AttackConfig
 from stealth_ns.datasets.frames import FRAMES, frame_transforms
 from stealth_ns.datasets.source import SceneSource, inspect_folder
 from stealth_ns.defences.scores import frustum_depth_ratios
-from stealth_ns.defences.signals import camera_matrices
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.gaussians.model_files import is_model_file, model_format, read_model_file
 from stealth_ns.gaussians.ply import GaussianCloud
 from stealth_ns.gaussians.transform import transform_cloud
 from stealth_ns.images.io import rgb_float
 from stealth_ns.images.metrics import psnr
+from stealth_ns.method.camera_geometry import camera_matrices
 from stealth_ns.method.checkpoints import find_checkpoint, read_checkpoint
 from stealth_ns.method.model import StealthSplatModel
 from stealth_ns.method.model_cloud import LOADED_STEP, cloud_of_model, cloud_of_params, load_cloud

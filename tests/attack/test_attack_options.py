@@ -53,6 +53,8 @@ BAD_VALUES: dict[str, list] = {
     "t_min_fraction": [0.0, -0.075, 1.0, 2.0, NAN],
     "unseen_t_min_fraction": [0.0, -0.01, 1.0, NAN, INF],
     "depth_floor": [-0.1, 1.0, 2.0, NAN, INF],
+    "proximity_weight": [-1.0, NAN, INF],
+    "proximity_target": [0.0, 1.0, -0.3, NAN],
     "t_min": [0.0, -0.3, NAN, INF],
     "samples_per_ray": [0, -1, 10**9, 1024.5],
     "tie_break": ["last"],

@@ -122,7 +122,7 @@ def test_depth_floor_moves_the_poison_out_of_camera_proximitys_reach(tiny_orbit_
     """The adaptive variant against camera-proximity: at the injection no poison Gaussian sits nearer a
     camera that has it in view than the floor's share of that camera's scene depth (the defence's
     own ratio, measured on the model after the injection); the default attack's poison does."""
-    from stealth_ns.defences.signals import camera_geometry
+    from stealth_ns.method.camera_geometry import camera_geometry
 
     ratios = {}
     for floor in (0.0, 0.3):
@@ -141,7 +141,62 @@ def test_depth_floor_moves_the_poison_out_of_camera_proximitys_reach(tiny_orbit_
         else:
             assert injection.rays_below_depth_floor_per_view == {}
     assert np.median(ratios[0.0]) < 0.15  # the default: in front of its camera, where the defence cuts
-    assert ratios[0.3].size and np.quantile(ratios[0.3], 0.01) >= 0.27, np.quantile(ratios[0.3], [0, 0.01, 0.5])
+    floored = ratios[0.3]
+    assert floored.size and np.quantile(floored, 0.01) >= 0.27, np.quantile(floored, [0, 0.01, 0.5])
+
+
+def test_proximity_hinge_is_the_defences_ratio_below_the_target():
+    from stealth_ns.attack.proximity_term import draw_points, proximity_hinge
+
+    viewmats = torch.stack([torch.eye(4), torch.eye(4)])
+    viewmats[1, :3, 3] = torch.tensor([0.0, 0.0, 2.0])  # 2 units behind the first camera
+    Ks = torch.tensor([[10.0, 0, 10], [0, 10.0, 10], [0, 0, 1]]).expand(2, 3, 3)
+    sizes, depths = torch.tensor([[20.0, 20.0], [20.0, 20.0]]), torch.tensor([4.0, 10.0])
+    means = torch.tensor(
+        [
+            [0.0, 0.0, 1.0],  # ratios 0.25 and 0.3: 1 - 0.25 / 0.5 = 0.5
+            [0.0, 0.0, 3.0],  # ratios 0.75 and 0.5: at or beyond the target, 0
+            [50.0, 0.0, 1.0],  # in no camera's image: 0
+        ],
+        requires_grad=True,
+    )
+    value = proximity_hinge(means, viewmats, Ks, sizes, depths, target=0.5)
+    assert float(value.detach()) == pytest.approx(0.5 / 3)
+    value.backward()
+    # only the point inside the reach is pushed, away from the camera that binds (camera 0, along +z)
+    assert means.grad[0, 2] < 0 and torch.all(means.grad[1:] == 0)
+    assert float(proximity_hinge(means[:0], viewmats, Ks, sizes, depths, 0.5)) == 0.0
+    assert draw_points(10, step=3, seed=0, limit=20) is None
+    drawn = draw_points(100, step=3, seed=0, limit=20)
+    assert drawn.shape == (20,) and torch.equal(drawn, draw_points(100, step=3, seed=0, limit=20))
+    assert not torch.equal(drawn, draw_points(100, step=4, seed=0, limit=20))
+
+
+def test_proximity_weight_trains_the_poison_out_of_the_defences_reach(tiny_orbit_scene):
+    """The white-box variant: the default attack's poison, trained with the term, moves away from the
+    cameras that have it in view (camera-proximity's ratio grows), and the term is a loss of its own."""
+    from stealth_ns.method.camera_geometry import camera_geometry
+
+    medians, terms = {}, {}
+    for weight in (0.0, 10.0):
+        pipeline = build_pipeline(
+            tiny_orbit_scene, AttackConfig(proximity_weight=weight, proximity_target=0.5)
+        )
+        stepper = Stepper(pipeline)
+        for step in range(40):
+            stepper.step(step)
+        terms[weight] = set(pipeline.get_train_loss_dict(step=40)[1])
+        model = pipeline.model
+        geometry = camera_geometry(model, pipeline.datamanager.train_dataset.cameras)
+        means = model.means.detach().cpu().numpy()[model.poison_mask.cpu().numpy()]
+        ratios = frustum_depth_ratios(
+            means, geometry.viewmats, geometry.Ks, geometry.sizes, geometry.scene_depths
+        )
+        medians[weight] = float(np.median(ratios))
+    assert "poison_proximity" in terms[10.0] and "poison_proximity" not in terms[0.0]
+    # Adam moves a centre by about its learning rate a step, whatever the weight: in 40 steps the
+    # poison moves a little, but outward
+    assert medians[10.0] > 1.03 * medians[0.0], medians
 
 
 def test_the_record_keeps_the_support_views_images(tmp_path):
