@@ -194,7 +194,8 @@ class BenchAttack:
     tables: tuple[str, ...] = ("1", "2", "3", "4", "5", "6")
     """Paper tables to reproduce: 1 single view, 2 Easy/Median/Hard, 3 multi-view, 4 KDE bandwidth,
     5 noise schedule, 6 attack components (with ASR); and this project's stealth tables (asked for by
-    number or with all): 7 stealth-aware variants, 8 the attack's knobs one at a time."""
+    number or with all): 7 stealth-aware variants, 8 the attack's knobs one at a time, 9 adaptive attacks
+    against camera-proximity and the scan."""
     scenes: tuple[str, ...] = ("orbit", "forward", "facing", "fox=../shared/data/fox")
     """Generated presets (orbit: 360°, Mip-NeRF 360-like; forward: free trajectory, Free-like;
     facing: forward-facing, LLFF-like) and dataset folders as NAME=PATH (nerfstudio-data, COLMAP

@@ -202,7 +202,7 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     settings = {(r.scene, r.attack, r.view, r.poisoning, r.poison_attack) for r in RUNS}
     # orbit 22 + 9 of the stealth tables (2 more are Tables 3 and 5's); forward / facing / fox 8, 6 of
     # Table 3 and 10 of the stealth tables (st-views-2 is Table 3's views-2) each
-    assert len(settings) == len(RUNS) == 103
+    assert len(settings) == len(RUNS) == 123  # + Table 9's five adaptive runs on each of the 4 scenes
     easy = plan.get("forward/easy")
     assert "<EASY view of the KDE protocol>" in easy.spec.options
     assert easy.spec.attack.config().views == ("<EASY view of the KDE protocol>",)
@@ -492,7 +492,7 @@ def test_table_rendering_from_fake_results():
 
 def test_table_specs_are_consistent():
     names = {(r.scene, r.name) for r in RUNS}
-    assert [t.number for t in TABLES] == [1, 2, 3, 4, 5, 6, 7, 8]
+    assert [t.number for t in TABLES] == [1, 2, 3, 4, 5, 6, 7, 8, 9]
     by_key = {(r.scene, r.name): r for r in RUNS}
     method_rows: list[tuple[int, tuple[str, ...]]] = []
     for table in TABLES:
@@ -525,7 +525,7 @@ def test_table_specs_are_consistent():
     assert get_table(6).run_keys() == ["orbit/gt-only", "orbit/gt-density", "orbit/gt-noise", "orbit/full"]
     # the stealth tables: Table 1's in-loop run first, then one run per setting, the poisoned view of
     # Table 1 (the KDE Median view); a uniform scene reuses Tables 3 and 5's runs
-    for number in (7, 8):
+    for number in (7, 8, 9):
         table = get_table(number)
         assert table.rows[0].runs == get_table(1).rows[-1].runs
         for row in table.rows[1:]:
