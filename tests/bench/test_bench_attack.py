@@ -180,7 +180,8 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
         "give --scenes fox=PATH to use it from elsewhere)"
     ]
     keys = [p.key for p in plan.runs]
-    orbit_runs = [r for r in RUNS if r.scene == "orbit" and not r.name.startswith("st-")]  # the paper's
+    # the paper's runs of orbit
+    orbit_runs = [r for r in RUNS if r.scene == "orbit" and not r.name.startswith(("st-", "ad-"))]
     # orbit: 17 in-loop runs + data-only, ipa, ipa-views-2/3/4; a KDE scene: 4 + ipa-easy/median/hard,
     # data-only-median
     assert len(keys) == len(set(keys)) == 38 == len(orbit_runs) + 2 * 8
@@ -579,7 +580,7 @@ def test_only_plans_the_matching_runs_and_their_clean_baselines(tmp_path, capsys
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"tables": ["9"]}, "unknown table '9'"),
+        ({"tables": ["10"]}, "unknown table '10'"),
         ({"tables": ["six"]}, "unknown table 'six'"),
         ({"scenes": ["garden"]}, "unknown scene 'garden'"),
         ({"tables": ["2"], "scenes": ["orbit"]}, "nothing to run: Table 2 skipped"),
@@ -601,9 +602,9 @@ def test_cli_dry_run_and_one_line_errors(tmp_path):
         "--iterations", "30", "--output", str(out),
     )  # fmt: skip
     assert "5 runs: 5 to train" in proc.stdout and not out.exists()
-    proc = run_cli("stealth-ns", "bench", "attack", "--tables", "9", "--dry-run", check=False)
+    proc = run_cli("stealth-ns", "bench", "attack", "--tables", "10", "--dry-run", check=False)
     assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0
-    assert "unknown table '9'" in proc.stderr
+    assert "unknown table '10'" in proc.stderr
     assert "bench attack" in run_cli("stealth-ns", "--help").stdout
 
 
