@@ -14,6 +14,7 @@ from typing import Annotated, Literal
 import tyro
 
 from stealth_ns.attack.config import AttackConfig
+from stealth_ns.bench.scan_runs import PlyFrame
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.difficulty.rank import RankViews
 from stealth_ns.foundation.errors import StealthNSError, environment_error
@@ -371,8 +372,11 @@ class BenchScan:
     only: tuple[str, ...] = ()
     """Scan only the runs whose name (SCENE/RUN, e.g. orbit/clean) contains one of these."""
     as_ply: bool = False
-    """Scan each run as another trainer's model: written as a 3DGS PLY in its dataset's own frame,
-    without the poison tag (OUTPUT/plys/), then scanned with --frame auto."""
+    """Scan each run as another trainer's model: written as a 3DGS PLY in --ply-frame, without the
+    poison tag (OUTPUT/plys/), then scanned with --frame auto."""
+    ply_frame: PlyFrame = "dataset"
+    """With --as-ply: the frame the PLYs are written in: the dataset's own (official 3DGS, OpenSplat by
+    default), OpenSplat's --center, or gsplat simple_trainer's default normalised frame (docs/scan.md)."""
     fit_first: tuple[str, ...] = ()
     """Scenes on which the held-out calibration first chooses the region threshold (judged on the
     other scenes, then the halves swap). Default: every other scene, in the order of results.json."""
@@ -385,7 +389,9 @@ class BenchScan:
         check_scenes(runs, self.fit_first, "--fit-first")
         from stealth_ns.bench.scan_table import TABLE_FILE, run_bench_scan
 
-        run_bench_scan(self.runs, self.output, self.options, self.only, self.as_ply, self.fit_first)
+        run_bench_scan(
+            self.runs, self.output, self.options, self.only, self.as_ply, self.fit_first, self.ply_frame
+        )
         print((self.output / TABLE_FILE).read_text(encoding="utf-8"))
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.output_folder import check_output_plan, check_outside, check_writable
@@ -72,6 +72,10 @@ def bench_runs(bench_output: Path) -> list[dict[str, Any]]:
                      "label": run.get("label", key), "v_illusory": metrics.get("v_illusory_psnr"),
                      "success": metrics.get("attack_success")})  # fmt: skip
     return runs
+
+
+#: The frames ``bench scan --as-ply`` writes its PLYs in (``--ply-frame``).
+PlyFrame = Literal["dataset", "opensplat-center", "gsplat-normalized"]
 
 
 def output_plan(as_ply: bool) -> tuple[list[str], list[str]]:

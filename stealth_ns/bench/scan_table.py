@@ -26,14 +26,16 @@ from stealth_ns.bench.scan_runs import (
     ROC_FILE,
     TABLE_FILE,
     WRITTEN_BY,
+    PlyFrame,
     check_arguments,
     inputs_of,
     output_plan,
 )
-from stealth_ns.datasets.frames import dataset_to_nerfstudio
+from stealth_ns.datasets.frames import frame_transforms
 from stealth_ns.datasets.source import inspect_folder
 from stealth_ns.defence_eval.evaluate import Evaluator, defeat_metrics, target_of
 from stealth_ns.defences.detection import detection_metrics
+from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.json_io import json_safe, write_json_atomic, write_text_atomic
 from stealth_ns.foundation.output_folder import claim_output, record_output
 from stealth_ns.gaussians.ply import write_gaussian_ply
@@ -45,27 +47,36 @@ from stealth_ns.scan.outputs import ground_truth
 from stealth_ns.scan.scanner import scan_model
 
 
-def as_foreign_ply(imported: ImportedModel, path: Path) -> Path:
-    """Write a loaded run's Gaussians to ``path`` as another trainer would: a 3DGS PLY in the dataset's
-    own frame, without the poison tag. Returns ``path``."""
+def as_foreign_ply(imported: ImportedModel, path: Path, frame: PlyFrame = "dataset") -> Path:
+    """Write a loaded run's Gaussians to ``path`` as another trainer would: a 3DGS PLY without the poison
+    tag, in ``frame`` -- the dataset's own, OpenSplat's ``--center`` or gsplat's default normalised one
+    (:mod:`stealth_ns.datasets.frames`). Returns ``path``; a one-line StealthNSError when the dataset
+    does not define ``frame``."""
     run = imported.run
     scene = inspect_folder("--data", str(run.data))
-    to_ns = dataset_to_nerfstudio(run.pipeline.datamanager.train_dataparser_outputs, scene)
-    cloud = transform_cloud(imported.cloud, np.linalg.inv(to_ns))
+    transforms = frame_transforms(run.pipeline.datamanager.train_dataparser_outputs, scene)
+    if frame not in transforms:
+        raise StealthNSError(
+            f"--ply-frame {frame}: the dataset {run.data} does not define it (gsplat's needs seed points, "
+            "neither reads a Blender dataset); leave its runs out with --only"
+        )
+    cloud = transform_cloud(imported.cloud, np.linalg.inv(transforms[frame]))
     cloud.extra = {}
     path.parent.mkdir(parents=True, exist_ok=True)
     write_gaussian_ply(path, cloud, comment="stealth-ns bench scan --as-ply")
     return path
 
 
-def scan_run(run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None) -> dict[str, Any]:
+def scan_run(
+    run: dict[str, Any], cfg: ScanConfig, ply: Path | None = None, frame: PlyFrame = "dataset"
+) -> dict[str, Any]:
     """One row: the scan's verdict on ``run`` and whether it is right; with ``ply``, the run is first
-    written there by :func:`as_foreign_ply` and that PLY is scanned on the run's dataset."""
+    written there in ``frame`` by :func:`as_foreign_ply` and that PLY is scanned on the run's dataset."""
     t0 = time.perf_counter()
     imported = load_model(run["config"])
     record = None if run["clean"] else attack_record(imported.run, run["config"])
     if ply is not None:
-        imported = load_model(as_foreign_ply(imported, ply), imported.run.data)
+        imported = load_model(as_foreign_ply(imported, ply, frame), imported.run.data)
     truth, support, poisoned, tampered = [], [], set(), set()
     if record is not None:
         truth = [v.name for v in record.views]
@@ -223,12 +234,13 @@ def run_bench_scan(
     only: tuple[str, ...] = (),
     as_ply: bool = False,
     first_half: tuple[str, ...] = (),
+    ply_frame: PlyFrame = "dataset",
 ) -> list[dict]:
     """Scan every finished run of ``bench_output`` (or those whose key contains one of ``only``); write
     OUTPUT/scan-results.json, OUTPUT/scan.md and OUTPUT/roc.png (and the record of them,
     :data:`~stealth_ns.bench.scan_runs.RECORD`); returns the rows. ``as_ply``: scan each run as a
-    foreign PLY (:func:`as_foreign_ply`, written to OUTPUT/plys/) instead. ``first_half``: the scenes
-    the held-out calibration fits on first (default: every other scene)."""
+    foreign PLY in ``ply_frame`` (:func:`as_foreign_ply`, written to OUTPUT/plys/) instead.
+    ``first_half``: the scenes the held-out calibration fits on first (default: every other scene)."""
     runs = check_arguments(bench_output, output, cfg, only, as_ply)  # before anything slow or written
     files, folders = output_plan(as_ply)
     claim_output(output, RECORD, WRITTEN_BY, files, folders, inputs_of(bench_output, runs))
@@ -236,7 +248,7 @@ def run_bench_scan(
     for i, run in enumerate(runs, 1):
         print(f"[{i}/{len(runs)}] scanning {run['key']}", flush=True)
         ply = output / PLYS_DIR / (run["key"].replace("/", "_") + ".ply") if as_ply else None
-        rows.append(scan_run(run, cfg, ply))
+        rows.append(scan_run(run, cfg, ply, ply_frame))
         print(f"  {rows[-1]['verdict']} {rows[-1]['named_views']} (right: {rows[-1]['right']})", flush=True)
         write_json_atomic(output / RESULTS_FILE, json_safe({"config": vars(cfg), "rows": rows}))
     calibration = held_out(rows, first_half)

@@ -279,3 +279,27 @@ def test_bench_scan_records_what_it_wrote(tiny_run_pair, tmp_path):
     assert rows[0]["tampered"] == []
     assert all({"view", "index", "share", "gaussians"} == set(g) for g in rows[0]["groups"])
     assert "Needs runs of at least two scenes." in (out / "scan.md").read_text()
+
+
+@pytest.mark.parametrize("frame", ["opensplat-center", "gsplat-normalized"])
+def test_bench_scan_as_another_trainers_ply_in_its_default_frame(tiny_run_pair, tmp_path, frame):
+    """--as-ply --ply-frame: each run written as OpenSplat (--center) or gsplat (its default) would
+    write it, then found in that frame by the scan's frame search."""
+    bench = fake_bench(tmp_path / "bench", tiny_run_pair).parent
+    out = tmp_path / "out"
+    stealth_ns(
+        "bench",
+        "scan",
+        "--runs",
+        bench,
+        "--output",
+        out,
+        "--only",
+        "orbit/clean",
+        "--as-ply",
+        "--ply-frame",
+        frame,
+    )
+    (row,) = json.loads((out / "scan-results.json").read_text())["rows"]
+    assert (row["run"], row["verdict"], row["frame"]) == ("orbit/clean", "clean", frame)
+    assert (out / "plys" / "orbit_clean.ply").is_file()
