@@ -22,6 +22,11 @@ STEALTH_SETTINGS: tuple[tuple[str, AttackSettings, str], ...] = (
     ("st-scale-2", AttackSettings.of(poison_scale=2.0), "poison scale 2 px (default 0.5)"),
     ("st-opacity-0.5", AttackSettings.of(poison_opacity=0.5), "poison opacity 0.5 (default 0.1)"),
     (
+        "st-repeat-3",
+        AttackSettings.of(poisoned_view_repeat=3),
+        "poisoned view drawn 3 times a pass (default 1)",
+    ),
+    (
         "st-inject-warmup",
         AttackSettings.of(injection_step=None),
         "injection at the end of warm-up (default 0)",

@@ -138,6 +138,11 @@ class AttackConfig:
     """Initial opacity of poison Gaussians (splatfacto's initial opacity)."""
     poison_scale: float = 0.5
     """Poison Gaussian std-dev in pixel footprints at its depth (depth / focal length)."""
+    poisoned_view_repeat: int = 1
+    """Times each view that shows the illusion (the poisoned views, and support views from the
+    injection on) is drawn per pass over the training views; 1 = once, like every view (the paper's
+    attack). A schedule knob of the in-loop attacker: on a capture of 67-184 photos a lite run shows
+    the poisoned view only 19-45 times (docs/captures.md)."""
 
     # --- view-consistency noise (§3.4) ---------------------------------------------------------
     noise_sigma0: float = 100.0

@@ -203,7 +203,8 @@ def _check_density_and_search(cfg: AttackConfig, sp: OptionSpelling) -> None:
 
 
 def _check_injection(cfg: AttackConfig, sp: OptionSpelling, max_iterations: int | None) -> None:
-    """``injection_step`` (before ``max_iterations`` when known), ``poison_opacity``, ``poison_scale``."""
+    """``injection_step`` (before ``max_iterations`` when known), ``poison_opacity``, ``poison_scale``,
+    ``poisoned_view_repeat``."""
     if max_iterations is None:
         _int(
             cfg, sp, "injection_step", "None (end of warm-up) or a step >= 0", lambda v: v >= 0, optional=True
@@ -219,6 +220,7 @@ def _check_injection(cfg: AttackConfig, sp: OptionSpelling, max_iterations: int 
         )
     _real(cfg, sp, "poison_opacity", "in (0, 1) (open interval)", lambda v: 0.0 < v < 1.0)
     _real(cfg, sp, "poison_scale", "> 0 (pixel footprints)", lambda v: v > 0.0)
+    _int(cfg, sp, "poisoned_view_repeat", "an integer >= 1 (draws per pass)", lambda v: v >= 1)
 
 
 _CHECKED = frozenset(
@@ -252,6 +254,7 @@ _CHECKED = frozenset(
         "injection_step",
         "poison_opacity",
         "poison_scale",
+        "poisoned_view_repeat",
         "noise_sigma0",
         "seed",
     }

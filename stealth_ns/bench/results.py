@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from stealth_ns.bench.plan import Plan, PlannedRun
-from stealth_ns.bench.stealth_plot import STEALTH_PLOT, plot_stealth
+from stealth_ns.bench.stealth_plot import FRONTIER_PLOT, STEALTH_PLOT, plot_frontier, plot_stealth
 from stealth_ns.bench.tables import NOT_IMPLEMENTED, SUCCESS_RULE, render_markdown, table_data
 from stealth_ns.datasets.generated import scene_info
 from stealth_ns.datasets.source import SceneSource
@@ -172,10 +172,12 @@ def write_outputs(
 
 def write_results(output: Path, results: dict[str, Any]) -> None:
     """``output/results.json``, ``output/tables.md`` and (when a run's stealth was measured)
-    ``output/stealth.png`` of ``results``, each replaced whole."""
+    ``output/stealth.png``, with Table 9 runs ``output/frontier.png``, of ``results``, each replaced
+    whole."""
     output.mkdir(parents=True, exist_ok=True)
     write_json_atomic(output / "results.json", results)
     tmp = output / ".tables.md.tmp"
     tmp.write_text(render_markdown(results))
     tmp.replace(output / "tables.md")
     plot_stealth(results.get("runs", {}), output / STEALTH_PLOT)
+    plot_frontier(results.get("runs", {}), output / FRONTIER_PLOT)

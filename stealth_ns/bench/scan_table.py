@@ -45,6 +45,7 @@ from stealth_ns.runs.loaded import attack_record
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.outputs import ground_truth
 from stealth_ns.scan.scanner import scan_model
+from stealth_ns.scan.verdict import is_detailed
 
 
 def as_foreign_ply(imported: ImportedModel, path: Path, frame: PlyFrame = "dataset") -> Path:
@@ -111,6 +112,8 @@ def scan_run(
                 "index": g.view,
                 "share": round(g.region.share, 6),
                 "gaussians": int(g.members.sum()),
+                "pixels": g.region.pixels,
+                "detailed": is_detailed(g.region.pixels, int(g.members.sum()), cfg.max_pixels_per_gaussian),
             }
             for g in result.groups
         ],

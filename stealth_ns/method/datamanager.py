@@ -3,7 +3,8 @@
 Training images (``next_train``), when the pipeline has set up an attack:
   - the poisoned views get the illusion composite I_ILL instead of the clean image;
   - innocent views get ``clip(I + N(0, sigma_t^2))`` with sigma_t from the noise schedule,
-    deterministic for (seed, view, step).
+    deterministic for (seed, view, step);
+  - with ``set_view_repeat`` the views showing the illusion are drawn more than once a pass.
 Both are out of place: the cached images stay clean, and evaluation images are never
 touched (``next_eval*`` and the fixed eval dataloader are nerfstudio's, unchanged).
 
@@ -16,6 +17,7 @@ training runs on the CPU the cache simply stays in ordinary memory.
 from __future__ import annotations
 
 import os
+import random
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -107,6 +109,7 @@ class StealthDataManager(FullImageDatamanager):
         super().__init__(*args, **kwargs)
         self.poison_targets: dict[int, Tensor] = {}
         self.noise: NoiseSpec | None = None
+        self.view_repeat = 1
         self._filtered: dict[int, Tensor] = {}  # input filter of the images that do not change per step
 
     def set_poison(self, targets: dict[int, Tensor], noise: NoiseSpec | None) -> None:
@@ -115,6 +118,26 @@ class StealthDataManager(FullImageDatamanager):
         self.poison_targets = dict(targets)
         self.noise = noise
         self._filtered.clear()
+
+    def set_view_repeat(self, repeat: int, seed: int) -> None:
+        """From now on each view of ``poison_targets`` is drawn ``repeat`` times per pass over the
+        training views (1: once, as every view), the extra draws at places a ``seed``-ed generator
+        picks; the pass under way gets them too."""
+        self.view_repeat = int(repeat)
+        self._repeat_rng = random.Random(seed)
+        if self.view_repeat > 1:
+            self.train_unseen_cameras = self._with_repeats(list(self.train_unseen_cameras))
+
+    def _with_repeats(self, order: list[int]) -> list[int]:
+        """``order`` (training indices) with ``view_repeat - 1`` extra draws of each view of
+        ``poison_targets`` inserted."""
+        for index in sorted(self.poison_targets) * (self.view_repeat - 1):
+            order.insert(self._repeat_rng.randint(0, len(order)), index)
+        return order
+
+    def sample_train_cameras(self) -> list[int]:
+        order = super().sample_train_cameras()
+        return self._with_repeats(list(order)) if getattr(self, "view_repeat", 1) > 1 else order
 
     @property
     def train_image_names(self) -> list[str]:

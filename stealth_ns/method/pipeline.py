@@ -205,6 +205,7 @@ class StealthPipeline(VanillaPipeline):
                 targets[v.index] = training_target(v, self.datamanager.cached_train[v.index]["image"])
         noise = NoiseSpec(cfg.noise_sigma0, cfg.noise_decay, max_steps, cfg.seed) if cfg.view_noise else None
         self.datamanager.set_poison(targets, noise)
+        self.datamanager.set_view_repeat(cfg.poisoned_view_repeat, cfg.seed)
         return noise
 
     def _injection_callbacks(self) -> list[TrainingCallback]:

@@ -84,11 +84,20 @@ def summary_lines(doc: dict[str, Any], output: Path) -> list[str]:
             f"{100 * t['region_share']:.1f}% of it"
         )
     if not doc["targeted_views"]:
-        best = doc["groups"][0]["region_share"] if doc["groups"] else 0.0
-        lines.append(
-            f"  no group covers {100 * doc['config']['region_threshold']:.1f}% of its view "
-            f"(largest {100 * best:.2f}%)"
-        )
+        best = doc["groups"][0] if doc["groups"] else {"region_share": 0.0}
+        cfg = doc["config"]
+        share = best["region_share"]
+        if share >= cfg["region_threshold"]:
+            lines.append(
+                f"  no targeted view: the largest region ({100 * share:.2f}% of {best['name']}) is drawn "
+                f"by {best['gaussians']} Gaussians at {best['pixels_per_gaussian']:g} pixels each, a blob "
+                f"rather than a picture (--max-pixels-per-gaussian {cfg['max_pixels_per_gaussian']:g})"
+            )
+        else:
+            lines.append(
+                f"  no group covers {100 * cfg['region_threshold']:.1f}% of its view "
+                f"(largest {100 * share:.2f}%)"
+            )
     lines.append(
         f"wrote {output / SCAN_FILE}, {output / HTML_FILE} and the cleaned model ({doc['removed']} Gaussians "
         f"removed) in {doc['seconds']['total']:.0f} s"

@@ -46,6 +46,11 @@ class ScanConfig:
     Measured (docs/scan.md): a clean model's largest region is at most 0.11 % of a view, a successful
     attack's at least 1.65 %; at 0.5 % innocent views were named beside the poisoned one (their regions
     0.53 % and more), at 2 % a successful support-views attack was missed."""
+    max_pixels_per_gaussian: float = 64.0
+    """...and its group has at least one Gaussian per this many pixels of the region (an 8x8 block): an
+    illusion is a picture, a few large Gaussians paint only a blob. Measured (docs/scan.md): every
+    poison group's region has 0.05-8.6 pixels per Gaussian of its group, a clean capture's floater
+    (``bird``, 10 Gaussians over 1.30 % of a view) 677."""
     frame: str = "auto"
     """World frame of a PLY, one of auto (each frame below tried, the best-matching kept), nerfstudio
     (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat without --center, gsplat
@@ -91,6 +96,7 @@ class ScanConfig:
             ("--depth-ratio", 0.0 < self.depth_ratio <= 1.0, "in (0, 1]"),
             ("--near-ratio", self.near_ratio > 0, "positive"),
             ("--region-threshold", 0.0 < self.region_threshold <= 1.0, "in (0, 1]"),
+            ("--max-pixels-per-gaussian", self.max_pixels_per_gaussian > 0, "positive"),
             ("--render-match-floor", math.isfinite(self.render_match_floor), "a number"),
         )
         for name, ok, rule in checks:

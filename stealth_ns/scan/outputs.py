@@ -73,6 +73,7 @@ def group_entry(group: Group) -> dict[str, Any]:
         "region_share": round(r.share, 5),
         "region_pixels": r.pixels,
         "region_box": list(r.box),
+        "pixels_per_gaussian": round(r.pixels / max(int(group.members.sum()), 1), 3),
         "targeted": group.targeted,
     }
 
@@ -106,7 +107,8 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
             f"suspicious when the flagged Gaussians one view sees most cover, connected, at least "
             f"{cfg.region_threshold:.1%} of that view, floating in front of what the rest of the model shows "
             f"there (below {cfg.depth_ratio:g} of its depth and {cfg.near_ratio:g} of the view's median "
-            f"scene depth) and changing its colour by more than {cfg.colour_change:g}"
+            f"scene depth) and changing its colour by more than {cfg.colour_change:g}, with at least one "
+            f"Gaussian per {cfg.max_pixels_per_gaussian:g} pixels of the region"
         ),
         "model": {
             "path": str(model_path),

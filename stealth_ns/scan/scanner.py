@@ -7,7 +7,8 @@ the training cameras of its dataset. Each Gaussian is scored by the post-hoc def
 ground truth (:mod:`stealth_ns.defences.posthoc`: view-support, camera-proximity and, when asked for,
 grad-concentration) and flagged by their rules; the flagged Gaussians are grouped by the view that
 sees them most, and each group's effect on its view is rendered (:mod:`stealth_ns.scan.verdict`).
-A group whose connected effect covers ``region_threshold`` of its view makes the model *suspicious*
+A group whose connected effect covers ``region_threshold`` of its view, with no more than
+``max_pixels_per_gaussian`` pixels of it per Gaussian of the group, makes the model *suspicious*
 and names that view as targeted; the cleaned model is the input without those groups.
 """
 
@@ -30,7 +31,14 @@ from stealth_ns.runs.imported import ImportedModel
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.fit import check_fit
 from stealth_ns.scan.photos import PhotoUse, photo_signals_refused
-from stealth_ns.scan.verdict import Region, RenderedView, effect_mask, groups_by_view, largest_region
+from stealth_ns.scan.verdict import (
+    Region,
+    RenderedView,
+    effect_mask,
+    groups_by_view,
+    is_targeted,
+    largest_region,
+)
 
 
 @dataclass
@@ -153,7 +161,7 @@ def scan_model(
     groups = []
     for view, members in groups_by_view(flagged, weights, cfg.min_group).items():
         region, renders = _group_effect(model, cameras[view : view + 1], members, cfg)
-        targeted = region.share >= cfg.region_threshold
+        targeted = is_targeted(region, int(members.sum()), cfg.region_threshold, cfg.max_pixels_per_gaussian)
         groups.append(Group(view, names[view], members, region, targeted, renders if targeted else {}))
     groups.sort(key=lambda g: (-g.region.share, g.view))
     seconds["groups"] = round(time.perf_counter() - t0, 2)

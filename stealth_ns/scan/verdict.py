@@ -12,7 +12,8 @@ each training view v:
   ``G_v`` is opaque too (something lies behind), ``G_v`` floats near the camera well in front of it,
   and removing ``G_v`` changes the colour;
 * its region: the largest 8-connected part of the effect (:func:`largest_region`), as a share of the
-  image. A view whose region reaches the threshold is named a targeted view.
+  image. A view whose region reaches the threshold, drawn by enough Gaussians to hold a picture
+  (:func:`is_targeted`), is named a targeted view.
 """
 
 from __future__ import annotations
@@ -111,3 +112,17 @@ def largest_region(mask: np.ndarray) -> Region:
     ys, xs = np.nonzero(biggest)
     box = (int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max()))
     return Region(float(biggest.sum()) / mask.size, int(biggest.sum()), box, biggest)
+
+
+def is_detailed(pixels: int, gaussians: int, max_pixels_per_gaussian: float) -> bool:
+    """Whether a group of ``gaussians`` Gaussians has at least one per ``max_pixels_per_gaussian`` of the
+    ``pixels`` of its region: an illusion is a picture, and a picture needs Gaussians of a few pixels
+    each; a handful of large Gaussians over a wide region paints a smooth blob (a clean capture's
+    floater)."""
+    return pixels <= max_pixels_per_gaussian * gaussians
+
+
+def is_targeted(region: Region, gaussians: int, threshold: float, max_pixels_per_gaussian: float) -> bool:
+    """Whether a group of ``gaussians`` Gaussians whose largest region is ``region`` names its view: the
+    region covers at least ``threshold`` of the image and the group is :func:`is_detailed`."""
+    return region.share >= threshold and is_detailed(region.pixels, gaussians, max_pixels_per_gaussian)

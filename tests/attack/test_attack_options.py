@@ -61,6 +61,7 @@ BAD_VALUES: dict[str, list] = {
     "injection_step": [-1, -100, 1.5],
     "poison_opacity": [0.0, 1.0, -0.1, 1.5, NAN],
     "poison_scale": [0.0, -0.5, NAN, INF],
+    "poisoned_view_repeat": [0, -1, 1.5, "3"],
     "noise_sigma0": [-1.0, NAN, INF],
     "noise_decay": ["exponential"],
     "seed": [-1, 0.5],

@@ -125,3 +125,11 @@ def test_the_group_size_is_chosen_with_the_threshold():
     assert choose_rule(rows[1:])[1] == 5
     # a group whose size was not recorded (an older scan-results.json) always counts
     assert verdict_at(row("a", "old", [(0, 0.02)]), 0.01, 1e9) == "suspicious"
+
+
+def test_a_group_too_coarse_for_a_picture_never_counts():
+    floater = row("a", "clean", [(0, 0.02, 10)])
+    floater["groups"][0]["detailed"] = False  # the scan's --max-pixels-per-gaussian said so
+    assert verdict_at(floater, 0.01) == "clean" and right_at(floater, 0.001)
+    floater["groups"][0]["detailed"] = True
+    assert verdict_at(floater, 0.01) == "suspicious"

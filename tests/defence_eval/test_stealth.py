@@ -137,3 +137,30 @@ def test_the_stealth_plot_shows_every_measured_attacked_run(tmp_path):
     assert (tmp_path / "stealth.png").stat().st_size > 1000
     assert plot_stealth({"orbit/clean": runs["orbit/clean"]}, tmp_path / "none.png") is None
     assert not (tmp_path / "none.png").exists()
+
+
+def test_the_frontier_plot_shows_table_9_runs_against_what_the_strongest_defence_leaves(tmp_path):
+    from stealth_ns.bench.stealth_plot import frontier_points, plot_frontier
+
+    def run(ill, after, stealthy, tables=(1, 9), scene="fox"):
+        metrics = {
+            "v_illusory_psnr": ill,
+            "stealthy_success": stealthy,
+            "stealth": {"auroc": {}, "v_illusory_after_strongest": after},
+        }
+        return {"scene": scene, "tables": list(tables), "metrics": metrics}
+
+    runs = {
+        "fox/clean": {"clean": True, "scene": "fox", "tables": [9]},
+        "fox/median": run(38.3, 9.9, False),
+        "fox/ad-floor-0.3-support-3": run(30.0, 12.4, False, tables=(9,)),
+        "fox/ad-whitebox": run(27.0, None, True, tables=(9,)),  # no cut within 0.5 dB
+        "fox/st-support-3": run(38.1, 10.0, False, tables=(7,)),  # not an adaptive table's run
+    }
+    points = frontier_points(runs)
+    assert [p["variant"] for p in points] == ["default attack", "ad-floor-0.3-support-3", "ad-whitebox"]
+    assert points[1]["after"] == 12.4 and points[2]["after"] is None and points[2]["stealthy"]
+    assert plot_frontier(runs, tmp_path / "frontier.png") == tmp_path / "frontier.png"
+    assert (tmp_path / "frontier.png").stat().st_size > 1000
+    assert plot_frontier({"fox/st-support-3": runs["fox/st-support-3"]}, tmp_path / "none.png") is None
+    assert not (tmp_path / "none.png").exists()

@@ -44,6 +44,25 @@ def test_poisoned_view_gets_target_and_innocent_views_get_noise(scene):
         assert any(torch.equal(data["image"], dm.cached_eval[j]["image"]) for j in range(len(dm.cached_eval)))
 
 
+def test_the_poisoned_view_is_drawn_as_often_as_asked(scene):
+    def passes(repeat: int) -> tuple[int, list[int]]:
+        pipeline = build_pipeline(scene, AttackConfig(density_guided=False, poisoned_view_repeat=repeat))
+        Stepper(pipeline, max_steps=100)
+        dm = pipeline.datamanager
+        n = len(dm.cached_train)
+        order = [int(dm.next_train(step)[0].metadata["cam_idx"]) for step in range(4 * (n + repeat - 1))]
+        return pipeline.poison_views[0].index, order
+
+    view, once = passes(1)
+    _, thrice = passes(3)
+    _, again = passes(3)
+    n = len(set(once))
+    assert once.count(view) == 4 and all(once.count(i) == 4 for i in set(once))  # the paper's: once a pass
+    assert thrice.count(view) == 12 and all(thrice.count(i) == 4 for i in set(thrice) - {view})
+    assert thrice == again  # seeded
+    assert [i for i in thrice[: n + 2] if i != view] == [i for i in once[:n] if i != view]  # same order
+
+
 def test_injection_adds_one_poison_gaussian_per_mask_pixel_and_tags_survive(scene):
     attack = AttackConfig(injection_step=3, view_noise=False)
     pipeline = build_pipeline(scene, attack, stop_split_at=40, reset_alpha_every=4)

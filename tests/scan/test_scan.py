@@ -313,6 +313,37 @@ def test_the_verdict_counts_a_connected_region_in_front_of_an_opaque_scene():
     assert largest_region(np.zeros((3, 3), bool)).share == 0.0
 
 
+def test_a_wide_region_of_a_few_large_gaussians_names_no_view():
+    from stealth_ns.scan.config import ScanConfig
+    from stealth_ns.scan.verdict import Region, is_detailed, is_targeted
+
+    threshold, per = ScanConfig.region_threshold, ScanConfig.max_pixels_per_gaussian
+    mask = np.zeros((100, 100), bool)
+    mask[:40, :40] = True  # 1600 pixels, 16 % of the image
+    region = Region(0.16, 1600, (0, 0, 39, 39), mask)
+    assert is_targeted(region, 1600 // int(per), threshold, per)  # a picture: 64 pixels a Gaussian
+    assert not is_targeted(region, 10, threshold, per)  # a floater: 160 pixels a Gaussian
+    assert not is_targeted(Region(0.001, 10, (0, 0, 3, 2), mask), 1000, threshold, per)  # too small
+    assert is_detailed(0, 0, per) and not is_detailed(65, 1, per)
+
+    from pathlib import Path
+
+    from stealth_ns.scan.command import summary_lines
+
+    blob = {"name": "117.jpg", "gaussians": 10, "region_share": 0.013, "pixels_per_gaussian": 677.5}
+    doc = {
+        "verdict": "clean",
+        "photos": {"used": True},
+        "targeted_views": [],
+        "groups": [blob],
+        "config": {"region_threshold": threshold, "max_pixels_per_gaussian": per},
+        "removed": 0,
+        "seconds": {"total": 1.0},
+    }
+    said = summary_lines(doc, Path("out"))[1]
+    assert "1.30% of 117.jpg" in said and "677.5 pixels each" in said and "a blob" in said
+
+
 def test_bench_scan_counts_each_kind_of_model():
     from stealth_ns.bench.scan_table import confusion
 
