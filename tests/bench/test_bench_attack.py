@@ -201,9 +201,9 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     assert all(c.parent.parent == tmp_path / "poisoned" for c in copies)
     # one run per distinct setting: no two presets of a scene train the same thing
     settings = {(r.scene, r.attack, r.view, r.poisoning, r.poison_attack) for r in RUNS}
-    # orbit 22 + 9 of the stealth tables (2 more are Tables 3 and 5's); forward / facing / fox 8, 6 of
-    # Table 3 and 10 of the stealth tables (st-views-2 is Table 3's views-2) each
-    assert len(settings) == len(RUNS) == 123  # + Table 9's five adaptive runs on each of the 4 scenes
+    # orbit 22 + 10 of the stealth tables (2 more are Tables 3 and 5's); forward / facing / fox 8, 6 of
+    # Table 3 and 11 of the stealth tables (st-views-2 is Table 3's views-2) each
+    assert len(settings) == len(RUNS) == 127  # + Table 9's five adaptive runs on each of the 4 scenes
     easy = plan.get("forward/easy")
     assert "<EASY view of the KDE protocol>" in easy.spec.options
     assert easy.spec.attack.config().views == ("<EASY view of the KDE protocol>",)

@@ -277,7 +277,8 @@ def test_bench_scan_records_what_it_wrote(tiny_run_pair, tmp_path):
     assert record["files"] == {k: v for k, v in digest(out).items() if not k.startswith(".")}
     assert set(record["files"]) == {"scan-results.json", "scan.md", "roc.png"}
     assert rows[0]["tampered"] == []
-    assert all({"view", "index", "share", "gaussians"} == set(g) for g in rows[0]["groups"])
+    keys = {"view", "index", "share", "gaussians", "pixels", "detailed"}
+    assert all(keys == set(g) for g in rows[0]["groups"])
     assert "Needs runs of at least two scenes." in (out / "scan.md").read_text()
 
 
