@@ -65,6 +65,16 @@ def data_only_attack(attack: AttackConfig) -> AttackConfig:
         raise StealthNSError(
             f"--noise-decay {attack.noise_decay}: {STATIC_NOISE_NOTE}; use --noise-decay constant"
         )
+    if attack.proximity_weight > 0.0:
+        raise StealthNSError(
+            f"--proximity-weight {attack.proximity_weight:g} is a loss while the poison trains: a dataset "
+            "cannot carry it (train with ns-train stealth-splat --pipeline.attack.proximity-weight instead)"
+        )
+    if attack.poisoned_view_repeat != 1:
+        raise StealthNSError(
+            f"--poisoned-view-repeat {attack.poisoned_view_repeat}: the victim's trainer decides how often "
+            "it draws each view, not the dataset (leave it at 1)"
+        )
     if not (attack.gt_replacement or attack.density_guided or attack.view_noise):
         raise StealthNSError("every component is off (--gt-replacement, --density-guided, --view-noise)")
     return dataclasses.replace(attack, enabled=True)

@@ -335,6 +335,8 @@ BAD_INPUT = {
     "linear-noise": r"--noise-decay linear: .*use --noise-decay constant",
     "injection-step": r"--injection-step 5: .*step 0",
     "all-off": r"every component is off",
+    "proximity-weight": r"--proximity-weight 1 is a loss while the poison trains: a dataset cannot carry it",
+    "view-repeat": r"--poisoned-view-repeat 3: the victim's trainer decides",
 }
 
 
@@ -356,6 +358,10 @@ def test_bad_output_or_options_are_refused_before_any_work(scene, tmp_path, case
         attack = dataclasses.replace(DATA_ONLY, injection_step=5)
     elif case == "all-off":
         attack = dataclasses.replace(DATA_ONLY, gt_replacement=False, density_guided=False)
+    elif case == "proximity-weight":
+        attack = dataclasses.replace(DATA_ONLY, proximity_weight=1.0)
+    elif case == "view-repeat":
+        attack = dataclasses.replace(DATA_ONLY, poisoned_view_repeat=3)
     listed = tree_hashes(output) if output.exists() else None
     with pytest.raises(StealthNSError, match=BAD_INPUT[case]) as err:
         poison_dataset(scene, output, attack)
