@@ -318,10 +318,16 @@ def _table_runs(
     skipped: list[str] = []
     uses: dict[str, list[int]] = {}
     for number in numbers:
-        table = get_table(number).for_scenes(scenes).for_attacks(attacks)
+        on_scenes = get_table(number).for_scenes(scenes)
+        table = on_scenes.for_attacks(attacks)
         keys = table.run_keys(scenes)
         if not keys:
-            skipped.append(f"Table {number} skipped: it runs on {', '.join(table.scenes)}, not in --scenes")
+            if on_scenes.run_keys(scenes):
+                skipped.append(f"Table {number} skipped: it has no {' or '.join(attacks)} runs (--attacks)")
+            else:
+                skipped.append(
+                    f"Table {number} skipped: it runs on {', '.join(table.scenes)}, not in --scenes"
+                )
             continue
         table_specs.append(table)
         for key in keys:

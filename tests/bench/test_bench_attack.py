@@ -584,6 +584,10 @@ def test_only_plans_the_matching_runs_and_their_clean_baselines(tmp_path, capsys
         ({"tables": ["six"]}, "unknown table 'six'"),
         ({"scenes": ["garden"]}, "unknown scene 'garden'"),
         ({"tables": ["2"], "scenes": ["orbit"]}, "nothing to run: Table 2 skipped"),
+        (
+            {"tables": ["9"], "scenes": ["orbit"], "attacks": ["data-only"]},
+            "Table 9 skipped: it has no data-only runs",
+        ),
         ({"method": "splatfacto"}, "unknown method 'splatfacto'"),
         ({"iterations": 0}, "iterations must be a positive integer"),
         ({"seed": -1}, "seed must be a non-negative integer"),
