@@ -30,8 +30,13 @@ import torch
 from stealth_ns.defences import scores
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.defences.detection import prune_mask_threshold
-from stealth_ns.defences.signals import FineTune, gradient_energy_matrix, view_weight_matrix
-from stealth_ns.method.camera_geometry import camera_geometry
+from stealth_ns.defences.signals import (
+    FineTune,
+    frustum_depth_ratios,
+    gradient_energy_matrix,
+    view_weights_and_depths,
+)
+from stealth_ns.method.camera_geometry import CameraGeometry, camera_geometry, geometry_of
 from stealth_ns.method.model import TRAINABLE, StealthSplatModel
 
 DESCRIPTIONS: dict[str, str] = {
@@ -70,12 +75,21 @@ class DefenceInputs:
     learning_rates: dict[str, float]
     """The run's final Adam rate of each trainable parameter (grad-concentration's fine-tune)."""
     _weights: np.ndarray | None = None
+    _depths: np.ndarray | None = None
 
     def view_weights(self) -> np.ndarray:
-        """``[N, V]`` blending weights, computed once (count-cap and view-support share them)."""
+        """``[N, V]`` blending weights, computed once (count-cap and view-support share them), with
+        each view's scene depth from the same renders (camera-proximity's, :meth:`geometry`)."""
         if self._weights is None:
-            self._weights = view_weight_matrix(self.model, self.cameras)
+            self._weights, self._depths = view_weights_and_depths(self.model, self.cameras)
         return self._weights
+
+    def geometry(self) -> CameraGeometry:
+        """The cameras with each one's median rendered depth: from the view weights' renders when
+        they were made, else rendered now."""
+        if self._depths is None:
+            return camera_geometry(self.model, self.cameras)
+        return geometry_of(self.cameras, self._depths)
 
 
 def _gaussian_arrays(model: StealthSplatModel) -> dict[str, np.ndarray]:
@@ -129,8 +143,8 @@ def _grad_concentration(inputs: DefenceInputs, cfg: DefendConfig) -> tuple[np.nd
 
 
 def _camera_proximity(inputs: DefenceInputs, cfg: DefendConfig) -> tuple[np.ndarray, np.ndarray, str]:
-    geometry = camera_geometry(inputs.model, inputs.cameras)
-    ratios = scores.frustum_depth_ratios(
+    geometry = inputs.geometry()
+    ratios = frustum_depth_ratios(
         _gaussian_arrays(inputs.model)["means"],
         geometry.viewmats,
         geometry.Ks,

@@ -246,7 +246,32 @@ def frustum_depth_ratios(
 
     A row with a non-finite centre scores ``0`` (the most suspicious ratio, so
     :func:`camera_proximity_scores` gives it ``+inf``).
+
+    This is the readable reference; :func:`stealth_ns.defences.signals.frustum_depth_ratios` runs the
+    compiled kernel of the same contract (``raster/csrc/frustum_cpu.cpp``).
     """
+    means, viewmats, Ks, sizes, depths = check_frustum_arguments(means, viewmats, Ks, sizes, scene_depths)
+    finite = np.isfinite(means).all(axis=1)
+    points = np.where(finite[:, None], means, 0.0)
+    out = np.full(means.shape[0], np.inf)
+    for cam in range(viewmats.shape[0]):
+        p = points @ viewmats[cam, :3, :3].T + viewmats[cam, :3, 3]
+        z = p[:, 2]
+        front = z > 0
+        zs = np.where(front, z, 1.0)
+        u = Ks[cam, 0, 0] * p[:, 0] / zs + Ks[cam, 0, 2]
+        w = Ks[cam, 1, 1] * p[:, 1] / zs + Ks[cam, 1, 2]
+        inside = front & (u >= 0) & (u < sizes[cam, 0]) & (w >= 0) & (w < sizes[cam, 1])
+        out = np.where(inside, np.minimum(out, z / depths[cam]), out)
+    out[~finite] = 0.0
+    return out
+
+
+def check_frustum_arguments(
+    means: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray, sizes: np.ndarray, scene_depths: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """:func:`frustum_depth_ratios`'s arguments as float64 arrays; ValueError naming the shapes when one
+    is wrong, or when the scene depths are not finite and > 0."""
     means = _rows(means, "means", 3)
     viewmats = np.asarray(viewmats, dtype=np.float64)
     Ks, sizes = np.asarray(Ks, dtype=np.float64), np.asarray(sizes, dtype=np.float64)
@@ -259,20 +284,7 @@ def frustum_depth_ratios(
         )
     if not np.all(np.isfinite(depths) & (depths > 0)):
         raise ValueError("scene_depths must be finite and > 0")
-    finite = np.isfinite(means).all(axis=1)
-    points = np.where(finite[:, None], means, 0.0)
-    out = np.full(means.shape[0], np.inf)
-    for cam in range(v):
-        p = points @ viewmats[cam, :3, :3].T + viewmats[cam, :3, 3]
-        z = p[:, 2]
-        front = z > 0
-        zs = np.where(front, z, 1.0)
-        u = Ks[cam, 0, 0] * p[:, 0] / zs + Ks[cam, 0, 2]
-        w = Ks[cam, 1, 1] * p[:, 1] / zs + Ks[cam, 1, 2]
-        inside = front & (u >= 0) & (u < sizes[cam, 0]) & (w >= 0) & (w < sizes[cam, 1])
-        out = np.where(inside, np.minimum(out, z / depths[cam]), out)
-    out[~finite] = 0.0
-    return out
+    return means, viewmats, Ks, sizes, depths
 
 
 def camera_proximity_scores(ratios: np.ndarray) -> np.ndarray:

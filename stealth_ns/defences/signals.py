@@ -9,8 +9,9 @@ Both return a ``[N, V]`` matrix (N Gaussians, V training views) that
   images, how much of each Gaussian's gradient comes from each view.
 
 and, from :mod:`stealth_ns.method.camera_geometry`, the cameras with the depth of what each shows, from
-which :func:`stealth_ns.defences.scores.frustum_depth_ratios` measures how close a Gaussian floats in
-front of a camera (camera-proximity).
+which :func:`frustum_depth_ratios` measures how close a Gaussian floats in front of a camera
+(camera-proximity): the compiled kernel (``raster/csrc/frustum_cpu.cpp``) with the contract of its numpy
+reference, :func:`stealth_ns.defences.scores.frustum_depth_ratios`.
 
 Poison is meant to be seen from one view, so its support and its gradient concentrate in it.
 """
@@ -24,7 +25,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from stealth_ns.attack.injection import median_scene_depth
+from stealth_ns.defences import scores
 from stealth_ns.method.model import POISON_TAG, StealthSplatModel
+from stealth_ns.raster.cpp_backend import load_extension
 
 
 def _progress(total: int, desc: str):
@@ -33,19 +37,51 @@ def _progress(total: int, desc: str):
     return tqdm(total=total, desc=desc, unit="view", leave=False, disable=None)
 
 
+def frustum_depth_ratios(
+    means: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray, sizes: np.ndarray, scene_depths: np.ndarray
+) -> np.ndarray:
+    """:func:`stealth_ns.defences.scores.frustum_depth_ratios` (its arguments, checks and result), by the
+    compiled kernel when it is available (one pass over the centres, every camera per block of them,
+    instead of a dozen full-size numpy operations per camera), else by that numpy reference."""
+    ext = load_extension()
+    if ext is None:
+        return scores.frustum_depth_ratios(means, viewmats, Ks, sizes, scene_depths)
+    scores.check_frustum_arguments(means, viewmats, Ks, sizes, scene_depths)
+    args = (means, viewmats, Ks, sizes, scene_depths)
+    tensors = [torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64)) for a in args]
+    return ext.frustum_depth_ratios(*tensors).numpy()
+
+
 @torch.no_grad()
 def view_weight_matrix(model: StealthSplatModel, cameras: object, desc: str = "view support") -> np.ndarray:
     """``[N, V]`` float32: accumulated alpha-blending weight of every Gaussian in every camera of
     ``cameras`` (a nerfstudio ``Cameras`` of V views), in pixels (1 = one full pixel's worth).
 
     Each column sums to the view's summed opacity (``accumulation``) over its pixels."""
+    return view_weights_and_depths(model, cameras, desc, with_depths=False)[0]
+
+
+@torch.no_grad()
+def view_weights_and_depths(
+    model: StealthSplatModel, cameras: object, desc: str = "view support", with_depths: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`view_weight_matrix`'s ``[N, V]`` weights and ``[V]`` each view's median rendered z-depth
+    of the pixels that show a surface (:func:`~stealth_ns.attack.injection.median_scene_depth`, NaN
+    where none does; all NaN without ``with_depths``), read off the same renders: camera-proximity's
+    scene depths (:func:`stealth_ns.method.camera_geometry.geometry_of`) without rendering again."""
     n_views = len(cameras)
     out = np.zeros((model.num_points, n_views), dtype=np.float32)
+    depths = np.full(n_views, np.nan)
     with _progress(n_views, desc) as bar:
         for v in range(n_views):
-            out[:, v] = model.blend_weights(cameras[v : v + 1]).cpu().numpy()
+            if with_depths:
+                weights, depth, alpha = model.blend_weights(cameras[v : v + 1], with_depth=True)
+                depths[v] = median_scene_depth(depth, alpha, np.nan)
+            else:
+                weights = model.blend_weights(cameras[v : v + 1])
+            out[:, v] = weights.cpu().numpy()
             bar.update(1)
-    return out
+    return out, depths
 
 
 @dataclass(frozen=True)

@@ -70,6 +70,9 @@ def quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+_SH_ROWS_PER_BLOCK = 1 << 16
+
+
 def sh_rotation(rotation: np.ndarray, degree: int) -> np.ndarray:
     """``[K, K]`` (K = (degree + 1)^2) matrix ``M`` such that coefficients ``c`` seen along ``d`` give the
     same colour as ``M c`` seen along ``R d``: ``B(R d) M = B(d)`` for the real SH basis ``B`` of
@@ -93,9 +96,16 @@ def transform_cloud(cloud: GaussianCloud, matrix: np.ndarray) -> GaussianCloud:
     means = (cloud.means.astype(np.float64) @ (s * rotation).T + t).astype(f32)
     quats = quaternion_product(rotation_quaternion(rotation), cloud.quats.astype(np.float64)).astype(f32)
     rest = cloud.sh_rest
-    if rest.shape[1]:
+    if rest.shape[1] and not np.allclose(rotation, np.eye(3), rtol=0, atol=1e-12):
         m = sh_rotation(rotation, cloud.sh_degree)[1:, 1:]  # degree 0 is invariant and kept apart
-        rest = np.einsum("kj,njc->nkc", m, rest.astype(np.float64)).astype(f32)
+        out = np.empty_like(rest, dtype=f32)
+        # [K, K] @ [K, rows * 3] a block of rows at a time: one matrix product each, small float64 copies
+        for lo in range(0, len(rest), _SH_ROWS_PER_BLOCK):
+            block = rest[lo : lo + _SH_ROWS_PER_BLOCK]
+            n, k, c = block.shape
+            flat = np.ascontiguousarray(block.transpose(1, 0, 2), dtype=np.float64).reshape(k, n * c)
+            out[lo : lo + n] = (m @ flat).reshape(k, n, c).transpose(1, 0, 2)
+        rest = out
     return GaussianCloud(
         means=means,
         log_scales=(cloud.log_scales.astype(np.float64) + np.log(s)).astype(f32),

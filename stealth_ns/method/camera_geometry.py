@@ -42,17 +42,25 @@ def camera_matrices(cameras: object) -> tuple[np.ndarray, np.ndarray, np.ndarray
     )
 
 
+def geometry_of(cameras: object, depths: np.ndarray) -> CameraGeometry:
+    """The cameras of ``cameras`` (V views) with ``depths`` ``[V]`` as their scene depths; a NaN depth
+    (a view that shows no surface) takes the median of the other views' (1.0 scene unit when none
+    shows one)."""
+    depths = np.array(depths, dtype=np.float64)
+    known = depths[np.isfinite(depths)]
+    depths[~np.isfinite(depths)] = float(np.median(known)) if known.size else 1.0
+    viewmats, ks, sizes = camera_matrices(cameras)
+    return CameraGeometry(viewmats=viewmats, Ks=ks, sizes=sizes, scene_depths=depths)
+
+
 @torch.no_grad()
 def camera_geometry(model: StealthSplatModel, cameras: object, desc: str = "scene depth") -> CameraGeometry:
-    """The cameras of ``cameras`` (V views) with each one's median rendered depth. A view that shows
-    no surface takes the median of the other views' (1.0 scene unit when none shows one)."""
+    """The cameras of ``cameras`` (V views) with each one's median rendered depth
+    (:func:`geometry_of`)."""
     depths = np.full(len(cameras), np.nan)
     with tqdm(total=len(cameras), desc=desc, unit="view", leave=False, disable=None) as bar:
         for v in range(len(cameras)):
             out = model.render_view(cameras[v : v + 1])
             depths[v] = median_scene_depth(out["depth"][..., 0], out["accumulation"][..., 0], np.nan)
             bar.update(1)
-    known = depths[np.isfinite(depths)]
-    depths[~np.isfinite(depths)] = float(np.median(known)) if known.size else 1.0
-    viewmats, ks, sizes = camera_matrices(cameras)
-    return CameraGeometry(viewmats=viewmats, Ks=ks, sizes=sizes, scene_depths=depths)
+    return geometry_of(cameras, depths)

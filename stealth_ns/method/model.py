@@ -513,21 +513,28 @@ class StealthSplatModel(LossesAndMetrics, SplatfactoModel):
             backend=backend,
         )
 
-    def blend_weights(self, camera: Cameras) -> Tensor:
+    def blend_weights(
+        self, camera: Cameras, with_depth: bool = False
+    ) -> Tensor | tuple[Tensor, Tensor, Tensor]:
         """``[N]`` accumulated alpha-blending weight of every Gaussian in one view (every row, no
         filter): the sum over the view's pixels of ``T_i * alpha_i``, the share of the pixel the
         Gaussian paints (0 when it is culled or fully hidden). Read off the renderer as the gradient
         of the rendered image's sum with respect to a per-Gaussian colour, which is exactly that sum
-        on every backend (gsplat, compiled CPU, torch reference)."""
+        on every backend (gsplat, compiled CPU, torch reference). ``with_depth``: also the view's
+        expected z-depth and opacity (``[H, W]`` each, as :meth:`get_outputs` renders them), from the
+        same rasterization."""
         camera = camera.to(self.device)
         viewmat, K, W, H = self._camera_geometry(camera, camera.camera_to_worlds)
         g = {k: v.detach() for k, v in self.gauss_params.items() if k != POISON_TAG}
         with torch.enable_grad():
             probe = torch.zeros(self.num_points, 1, device=self.device, requires_grad=True)
             colors = probe.expand(-1, 3)
-            render, _, _ = self._rasterize(g, colors, None, viewmat, K, (W, H), "RGB")
+            mode = "RGB+ED" if with_depth else "RGB"
+            render, alpha, _ = self._rasterize(g, colors, None, viewmat, K, (W, H), mode)
             (grad,) = torch.autograd.grad(render[..., 0].sum(), probe)
-        return grad[:, 0]
+        if not with_depth:
+            return grad[:, 0]
+        return grad[:, 0], render[0, ..., 3].detach(), alpha[0, ..., 0].detach()
 
     def get_outputs(self, camera: Cameras) -> dict[str, Tensor | list]:
         if not isinstance(camera, Cameras):

@@ -20,7 +20,8 @@ the C++ file for the exact semantics), its ``isect_tiles`` + ``isect_offset_enco
 projection and SH (forward and backward; ``projection.py`` is their torch reference); the same
 module holds the training loss's SSIM (``stealth_ns/images/ssim.py``; pytorch_msssim is its reference), the
 densification statistics (``stealth_ns/method/densification.py``; its torch code is their reference), the
-background composite (``composite.py``), camera visibility counts, the injection's ray search
+background composite (``composite.py``), camera visibility counts, camera-proximity's depth ratios
+(``stealth_ns/defences/scores.py``'s numpy code is the reference), the injection's ray search
 (``stealth_ns/attack/ray_search.py``; its torch code is the reference) and the attack's view noise
 (``stealth_ns/attack/normal_draw.py``; its numpy code is their reference).
 """
@@ -64,7 +65,17 @@ __all__ = [
 EXTENSION_NAME = "stealth_ns_raster_cpu"
 _CSRC = Path(__file__).resolve().parent / "csrc"
 # csrc/<name>_cpu.cpp + .h, bound in bindings.cpp
-_KERNELS = ("rasterize", "project", "ssim", "composite", "densify", "visibility", "ray_search", "noise")
+_KERNELS = (
+    "rasterize",
+    "project",
+    "ssim",
+    "composite",
+    "densify",
+    "visibility",
+    "frustum",
+    "ray_search",
+    "noise",
+)
 _SOURCES = (*(_CSRC / f"{name}_cpu.cpp" for name in _KERNELS), _CSRC / "bindings.cpp")
 _HEADERS = (
     *(_CSRC / f"{name}_cpu.h" for name in _KERNELS),

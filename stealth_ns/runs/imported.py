@@ -26,7 +26,7 @@ import torch
 from stealth_ns.attack.config import AttackConfig
 from stealth_ns.datasets.frames import FRAMES, frame_transforms
 from stealth_ns.datasets.source import SceneSource, inspect_folder
-from stealth_ns.defences.scores import frustum_depth_ratios
+from stealth_ns.defences.signals import frustum_depth_ratios
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.gaussians.model_files import is_model_file, model_format, read_model_file
 from stealth_ns.gaussians.ply import GaussianCloud

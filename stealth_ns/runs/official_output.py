@@ -32,7 +32,7 @@ from stealth_ns.datasets.official_output import (
     write_camera_dataset,
 )
 from stealth_ns.datasets.source import inspect_folder
-from stealth_ns.defences.scores import frustum_depth_ratios
+from stealth_ns.defences.signals import frustum_depth_ratios
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.gaussians.ply import read_gaussian_ply
 

@@ -15,9 +15,10 @@ from model_helpers import build_model, camera, pinhole_cameras
 from stealth_ns.defence_eval.stealth import stealth_summary
 from stealth_ns.defences.config import DEFENCES, DefendConfig
 from stealth_ns.defences.pruned_run import pruned_state
-from stealth_ns.defences.signals import gradient_energy_matrix, view_weight_matrix
+from stealth_ns.defences.signals import gradient_energy_matrix, view_weight_matrix, view_weights_and_depths
 from stealth_ns.gaussians.rows import select_rows
 from stealth_ns.images.input_filter import filter_image
+from stealth_ns.method.camera_geometry import camera_geometry
 from stealth_ns.method.render_view import render_camera
 
 
@@ -40,6 +41,25 @@ def test_blend_weights_sum_to_the_accumulated_opacity():
     with torch.no_grad():
         model.gauss_params["means"][0] = torch.tensor([0.0, 0.0, 10.0])
     assert float(model.blend_weights(cam)[0]) == 0.0
+
+
+def test_view_weights_bring_the_scene_depths_of_camera_proximity():
+    """camera-proximity's scene depths read off the view weights' renders are those of its own
+    renders, exactly, and the weights those of view_weight_matrix; a view that shows nothing is NaN
+    there and takes the other views' median in the geometry."""
+    model, _ = build_model(n_points=200)
+    model.eval()
+    c2w = torch.eye(4)[:3].repeat(3, 1, 1)
+    c2w[0, :, 3] = torch.tensor([0.0, 0.0, 3.0])
+    c2w[1, :, 3] = torch.tensor([0.3, 0.0, 3.0])
+    c2w[2, :, 3] = torch.tensor([0.0, 0.0, -30.0])  # looks away from every Gaussian
+    cams = pinhole_cameras(c2w)
+    weights, depths = view_weights_and_depths(model, cams)
+    assert np.array_equal(weights, view_weight_matrix(model, cams))
+    rendered = camera_geometry(model, cams).scene_depths
+    assert np.isfinite(depths[:2]).all() and np.isnan(depths[2])
+    assert depths[:2].tolist() == rendered[:2].tolist()
+    assert rendered[2] == np.median(depths[:2])
 
 
 def test_kept_renders_as_if_the_rows_were_removed():

@@ -4,6 +4,7 @@
 
 #include "composite_cpu.h"
 #include "densify_cpu.h"
+#include "frustum_cpu.h"
 #include "noise_cpu.h"
 #include "project_cpu.h"
 #include "rasterize_cpu.h"
@@ -17,7 +18,7 @@
 namespace py = pybind11;
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, background composite, densification statistics, camera visibility, the injection's ray search, view noise";
+    m.doc() = "stealth-ns compiled CPU kernels: rasterizer, projection + SH, SSIM, background composite, densification statistics, camera visibility, camera-proximity's depth ratios, the injection's ray search, view noise";
     m.def("rasterize_fwd", &stealth_ns::rasterize_fwd,
           py::arg("means2d"), py::arg("conics"), py::arg("colors"),
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
@@ -55,6 +56,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("grads"), py::arg("radii"), py::arg("scale_x"), py::arg("scale_y"), py::arg("size"));
     m.def("count_seeing", &stealth_ns::count_seeing, py::arg("points"), py::arg("viewmats"), py::arg("Ks"),
           py::arg("bounds"), py::arg("near_plane"));
+    m.def("frustum_depth_ratios", &stealth_ns::frustum_depth_ratios, py::arg("points"), py::arg("viewmats"),
+          py::arg("Ks"), py::arg("sizes"), py::arg("depths"));
     m.def("ray_search", &stealth_ns::ray_search, py::arg("origins"), py::arg("dirs"), py::arg("t_min"),
           py::arg("t_max"), py::arg("frac"), py::arg("values"), py::arg("grid_origin"), py::arg("voxel_size"),
           py::arg("outside"), py::arg("viewmats"), py::arg("Ks"), py::arg("bounds"), py::arg("support_viewmats"),
