@@ -46,9 +46,8 @@ def frustum_depth_ratios(
     ext = load_extension()
     if ext is None:
         return scores.frustum_depth_ratios(means, viewmats, Ks, sizes, scene_depths)
-    scores.check_frustum_arguments(means, viewmats, Ks, sizes, scene_depths)
-    args = (means, viewmats, Ks, sizes, scene_depths)
-    tensors = [torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64)) for a in args]
+    checked = scores.check_frustum_arguments(means, viewmats, Ks, sizes, scene_depths)
+    tensors = [torch.from_numpy(np.ascontiguousarray(a)) for a in checked]
     return ext.frustum_depth_ratios(*tensors).numpy()
 
 
