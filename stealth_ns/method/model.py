@@ -64,6 +64,7 @@ from stealth_ns.images.ssim import SSIM
 from stealth_ns.method.densification import DenseStatisticsStrategy
 from stealth_ns.method.losses import LossesAndMetrics
 from stealth_ns.method.render_view import RenderFilter, render_camera
+from stealth_ns.raster import blend_weights as raster_blend_weights
 from stealth_ns.raster import rasterization, resolve_backend
 from stealth_ns.raster.composite import composite_on_background
 from stealth_ns.raster.projection import SHCoefficients, viewmat_from_c2w
@@ -494,10 +495,7 @@ class StealthSplatModel(LossesAndMetrics, SplatfactoModel):
         ``colors`` (SH coefficients when ``sh_degree`` is set, else per-Gaussian values)."""
         backend = self.rasterizer_backend  # first: resolving it sets the strategy's absgrad
         return rasterization(
-            means=g["means"],
-            quats=g["quats"],
-            scales=thread_invariant.exp(g["scales"]),
-            opacities=thread_invariant.sigmoid(g["opacities"]).squeeze(-1),
+            **self._geometry(g),
             colors=colors,
             viewmats=viewmat,
             Ks=K,
@@ -513,28 +511,32 @@ class StealthSplatModel(LossesAndMetrics, SplatfactoModel):
             backend=backend,
         )
 
+    @staticmethod
+    def _geometry(g: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The rasterizer's Gaussians of rows ``g``: scales from log-scales, opacities from logits."""
+        scales, opacities = thread_invariant.exp(g["scales"]), thread_invariant.sigmoid(g["opacities"])
+        return dict(means=g["means"], quats=g["quats"], scales=scales, opacities=opacities.squeeze(-1))
+
     def blend_weights(
         self, camera: Cameras, with_depth: bool = False
     ) -> Tensor | tuple[Tensor, Tensor, Tensor]:
-        """``[N]`` accumulated alpha-blending weight of every Gaussian in one view (every row, no
-        filter): the sum over the view's pixels of ``T_i * alpha_i``, the share of the pixel the
-        Gaussian paints (0 when it is culled or fully hidden). Read off the renderer as the gradient
-        of the rendered image's sum with respect to a per-Gaussian colour, which is exactly that sum
-        on every backend (gsplat, compiled CPU, torch reference). ``with_depth``: also the view's
-        expected z-depth and opacity (``[H, W]`` each, as :meth:`get_outputs` renders them), from the
-        same rasterization."""
+        """``[N]`` every Gaussian's alpha-blending weight in one view (every row, no filter):
+        :func:`stealth_ns.raster.blend_weights`. ``with_depth``: also the view's expected z-depth and
+        opacity (``[H, W]`` each, as :meth:`get_outputs` renders them), from the same rasterization."""
         camera = camera.to(self.device)
         viewmat, K, W, H = self._camera_geometry(camera, camera.camera_to_worlds)
-        g = {k: v.detach() for k, v in self.gauss_params.items() if k != POISON_TAG}
-        with torch.enable_grad():
-            probe = torch.zeros(self.num_points, 1, device=self.device, requires_grad=True)
-            colors = probe.expand(-1, 3)
-            mode = "RGB+ED" if with_depth else "RGB"
-            render, alpha, _ = self._rasterize(g, colors, None, viewmat, K, (W, H), mode)
-            (grad,) = torch.autograd.grad(render[..., 0].sum(), probe)
-        if not with_depth:
-            return grad[:, 0]
-        return grad[:, 0], render[0, ..., 3].detach(), alpha[0, ..., 0].detach()
+        weights, depth, alpha = raster_blend_weights(
+            **self._geometry({k: v.detach() for k, v in self.gauss_params.items()}),
+            viewmats=viewmat,
+            Ks=K,
+            width=W,
+            height=H,
+            near_plane=NEAR_PLANE,
+            with_depth=with_depth,
+            rasterize_mode=self.config.rasterize_mode,
+            backend=self.rasterizer_backend,
+        )
+        return (weights[0], depth[0], alpha[0]) if with_depth else weights[0]
 
     def get_outputs(self, camera: Cameras) -> dict[str, Tensor | list]:
         if not isinstance(camera, Cameras):

@@ -1,5 +1,5 @@
 """3D Gaussian rasterization with gsplat's contract: CUDA (gsplat), compiled CPU and pure-PyTorch backends."""
 
-from stealth_ns.raster.rasterization import Backend, rasterization, resolve_backend
+from stealth_ns.raster.rasterization import Backend, blend_weights, rasterization, resolve_backend
 
-__all__ = ["Backend", "rasterization", "resolve_backend"]
+__all__ = ["Backend", "blend_weights", "rasterization", "resolve_backend"]

@@ -400,6 +400,38 @@ def rasterize_to_pixels_cpp(
 
 
 @torch.no_grad()
+def rasterize_weights_cpp(
+    means2d: Tensor,
+    conics: Tensor,
+    colors: Tensor,
+    opacities: Tensor,
+    image_width: int,
+    image_height: int,
+    tile_size: int,
+    isect_offsets: Tensor,
+    flatten_ids: Tensor,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`rasterize_to_pixels_cpp`'s forward (no background, no gradient) and every Gaussian's
+    blending weight: ``(render_colors [C, H, W, D], render_alphas [C, H, W, 1], weights [C, N])``, the
+    weight being ``T * alpha`` summed over the pixels the Gaussian is blended into, which is the
+    gradient of ``render_colors[..., k].sum()`` with respect to ``colors[..., k]``, without a backward."""
+    return tuple(
+        _require().rasterize_weights(
+            _f32(means2d),
+            _f32(conics),
+            _f32(colors),
+            _f32(opacities),
+            None,
+            int(image_width),
+            int(image_height),
+            int(tile_size),
+            _i32(isect_offsets),
+            _i32(flatten_ids),
+        )
+    )
+
+
+@torch.no_grad()
 def isect_tiles_cpp(
     means2d: Tensor,  # [C, N, 2]
     radii: Tensor,  # [C, N] int

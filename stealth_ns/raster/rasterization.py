@@ -170,6 +170,97 @@ def rasterization(
     )
 
 
+def blend_weights(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    viewmats: Tensor,
+    Ks: Tensor,
+    width: int,
+    height: int,
+    near_plane: float = 0.01,
+    with_depth: bool = False,
+    tile_size: int = 16,
+    rasterize_mode: Literal["classic", "antialiased"] = "classic",
+    backend: Backend = "auto",
+) -> tuple[Tensor, Tensor | None, Tensor]:
+    """Every Gaussian's alpha-blending weight in each camera: the sum over the camera's pixels of
+    ``T_i * alpha_i``, the share of the pixel the Gaussian paints (0 when culled or fully hidden).
+
+    Arguments as :func:`rasterization` (no gradient flows). The compiled CPU backend sums the weights
+    as it blends (one forward pass); the others read them off the renderer as the gradient of the
+    rendered image's sum with respect to a per-camera, per-Gaussian colour (forward and backward),
+    which is the same sum on every backend.
+
+    Returns:
+        weights ``[C, N]``; the expected z-depth ``[C, H, W]`` as the ``"ED"`` render mode gives it
+        (``None`` unless ``with_depth``); the opacity ``[C, H, W]``.
+    """
+    name = resolve_backend(backend, means.device)
+    C, N = viewmats.shape[0], means.shape[0]
+    if name == "cpp" and rasterize_mode == "classic":
+        return _cpp_blend_weights(
+            means, quats, scales, opacities, viewmats, Ks, width, height, near_plane, with_depth, tile_size
+        )
+    with torch.enable_grad():
+        probe = torch.zeros(C, N, 1, device=means.device, requires_grad=True)
+        render, alpha, _ = rasterization(
+            means.detach(),
+            quats.detach(),
+            scales.detach(),
+            opacities.detach(),
+            probe.expand(-1, -1, 3),
+            viewmats,
+            Ks,
+            width,
+            height,
+            near_plane=near_plane,
+            tile_size=tile_size,
+            render_mode="RGB+ED" if with_depth else "RGB",
+            rasterize_mode=rasterize_mode,
+            backend=name,
+        )
+        (grad,) = torch.autograd.grad(render[..., 0].sum(), probe)
+    depth = render[..., 3].detach() if with_depth else None
+    return grad[..., 0], depth, alpha[..., 0].detach()
+
+
+@torch.no_grad()
+def _cpp_blend_weights(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    viewmats: Tensor,
+    Ks: Tensor,
+    width: int,
+    height: int,
+    near_plane: float,
+    with_depth: bool,
+    tile_size: int,
+) -> tuple[Tensor, Tensor | None, Tensor]:
+    """:func:`blend_weights` with the compiled kernels: projection, tile sort, one forward."""
+    from stealth_ns.raster.cpp_backend import isect_tiles_cpp, project_gaussians_cpp, rasterize_weights_cpp
+
+    C = viewmats.shape[0]
+    radii, means2d, depths, conics = project_gaussians_cpp(
+        means, quats, scales, viewmats, Ks, width, height, near_plane=near_plane
+    )
+    opac = opacities[None, :].expand(C, -1).contiguous()
+    tile_width, tile_height = tile_grid(width, height, tile_size)
+    footprint = Footprint(conics, opac, width, height)
+    offsets, flatten_ids = isect_tiles_cpp(
+        means2d, radii, depths, tile_size, tile_width, tile_height, footprint
+    )
+    feats = depths[..., None] if with_depth else depths.new_zeros(C, means.shape[0], 1)
+    render, alpha, weights = rasterize_weights_cpp(
+        means2d, conics, feats, opac, width, height, tile_size, offsets, flatten_ids
+    )
+    depth = (render / alpha.clamp(min=1e-10))[..., 0] if with_depth else None
+    return weights, depth, alpha[..., 0]
+
+
 def _rasterize_cpu(
     name: str,
     means: Tensor,

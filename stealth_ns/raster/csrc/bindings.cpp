@@ -24,6 +24,11 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
           py::arg("tile_size"), py::arg("isect_offsets"), py::arg("flatten_ids"), py::arg("cull") = true,
           py::arg("n_threads") = 0);
+    m.def("rasterize_weights", &stealth_ns::rasterize_weights,
+          py::arg("means2d"), py::arg("conics"), py::arg("colors"),
+          py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),
+          py::arg("tile_size"), py::arg("isect_offsets"), py::arg("flatten_ids"), py::arg("cull") = true,
+          py::arg("n_threads") = 0);
     m.def("rasterize_bwd", &stealth_ns::rasterize_bwd,
           py::arg("means2d"), py::arg("conics"), py::arg("colors"),
           py::arg("opacities"), py::arg("backgrounds"), py::arg("image_width"), py::arg("image_height"),

@@ -47,6 +47,10 @@
 //      one tile, no race), reduced afterwards in isect order -> deterministic;
 //   1: OpenMP atomics straight into the gradient tensors;
 //   2: per-thread [C*N, 6 + D] buffers reduced at the end.
+//
+// rasterize_weights: the forward, also summing each Gaussian's T * alpha over the pixels of each tile
+// (the colour gradient of the backward with an upstream gradient of ones, without the backward), into
+// one slot per intersection, added in intersection order afterwards (as backward mode 0).
 
 #include "rasterize_cpu.h"
 #include "simd_width.h"
@@ -875,7 +879,7 @@ void fwd_impl(
     const float *__restrict__ opacities, const float *__restrict__ backgrounds,
     const int32_t *__restrict__ offsets, const int32_t *__restrict__ flatten_ids,
     float *__restrict__ out_colors, float *__restrict__ out_alphas, float *__restrict__ out_T,
-    int32_t *__restrict__ out_last, int n_threads
+    int32_t *__restrict__ out_last, float *__restrict__ isect_w, int n_threads
 ) {
     const std::unique_ptr<GPrep[]> prep_v = prepare(
         C * N, means2d, conics, opacities, (float)(g.W + g.H), cull, flatten_ids, n_isects, n_threads
@@ -927,6 +931,7 @@ void fwd_impl(
                 if (gp.kind == kSkip) continue;
                 const float mx = gp.mx, ca = gp.a, cb = gp.b, cc = gp.c, op = gp.o;  // dy: from the block
                 const float *__restrict__ cptr = colors + gi * D;
+                vf wsum{};  // the Gaussian's T * alpha summed over the tile's pixels (isect_w only)
                 visitor.visit<kForwardBlocks>(gp, x_base, tx1, y_base, ty1, [&](auto u, const Block *b) {
                     using B = Blocks<decltype(u)::value>;
                     using F = typename B::F;
@@ -955,7 +960,9 @@ void fwd_impl(
                         float *__restrict__ cp = colp + (size_t)k * npad;
                         B::st(cp, b, B::ld(cp, b) + cptr[k] * vis);
                     }
+                    if (isect_w) B::add(wsum, vis);
                 });
+                if (isect_w) isect_w[idx] = vsum(wsum);
             }
 
             const float *bg = backgrounds ? backgrounds + cam * D : nullptr;
@@ -1239,13 +1246,16 @@ int resolve_threads(int64_t n_threads) {
 
 }  // namespace
 
-// Returns (render_colors [C,H,W,D], render_alphas [C,H,W,1], last_ids [C,H,W] int32,
-//          T_final [C,H,W]).  last_ids is -1 for pixels without contributor.
-std::vector<at::Tensor> rasterize_fwd(
+namespace {
+
+// The forward's outputs (render_colors, render_alphas, last_ids, T_final), and with `weights` a fifth:
+// [C, N] every Gaussian's T * alpha summed over the pixels it is blended into, each tile's sum
+// written to its own intersection slot and the slots added in intersection order (deterministic).
+std::vector<at::Tensor> forward_outputs(
     const at::Tensor &means2d, const at::Tensor &conics, const at::Tensor &colors,
     const at::Tensor &opacities, const std::optional<at::Tensor> &backgrounds, int64_t image_width,
     int64_t image_height, int64_t tile_size, const at::Tensor &isect_offsets,
-    const at::Tensor &flatten_ids, bool cull, int64_t n_threads
+    const at::Tensor &flatten_ids, bool cull, int64_t n_threads, bool weights
 ) {
     check_cpu_f32(means2d, "means2d");
     check_cpu_f32(conics, "conics");
@@ -1284,13 +1294,49 @@ std::vector<at::Tensor> rasterize_fwd(
     validate_lists(isect_offsets, flatten_ids, C * N);
     TileGeom g{(int)image_width, (int)image_height, (int)tile_size, (int)tiles_x, (int)tiles_y};
     const int nt = resolve_threads(n_threads);
+    // a tile that stops before a Gaussian of its list never writes that Gaussian's slot: zeros
+    std::vector<float> isect_w(weights ? (size_t)n_isects : 0, 0.f);
     STEALTH_DISPATCH_D(
         D, fwd_impl, C, N, (int)D, g, n_isects, cull, means2d.data_ptr<float>(), conics.data_ptr<float>(),
         colors.data_ptr<float>(), opacities.data_ptr<float>(), bg, isect_offsets.data_ptr<int32_t>(),
         flatten_ids.data_ptr<int32_t>(), out_colors.data_ptr<float>(), out_alphas.data_ptr<float>(),
-        out_T.data_ptr<float>(), out_last.data_ptr<int32_t>(), nt
+        out_T.data_ptr<float>(), out_last.data_ptr<int32_t>(), weights ? isect_w.data() : nullptr, nt
     );
-    return {out_colors, out_alphas, out_last, out_T};
+    if (!weights) return {out_colors, out_alphas, out_last, out_T};
+    auto out_w = at::zeros({C, N}, fopt);
+    float *w = out_w.data_ptr<float>();
+    const int32_t *ids = flatten_ids.data_ptr<int32_t>();
+    for (int64_t k = 0; k < n_isects; ++k) w[ids[k]] += isect_w[(size_t)k];
+    return {out_colors, out_alphas, out_last, out_T, out_w};
+}
+
+}  // namespace
+
+// Returns (render_colors [C,H,W,D], render_alphas [C,H,W,1], last_ids [C,H,W] int32,
+//          T_final [C,H,W]).  last_ids is -1 for pixels without contributor.
+std::vector<at::Tensor> rasterize_fwd(
+    const at::Tensor &means2d, const at::Tensor &conics, const at::Tensor &colors,
+    const at::Tensor &opacities, const std::optional<at::Tensor> &backgrounds, int64_t image_width,
+    int64_t image_height, int64_t tile_size, const at::Tensor &isect_offsets,
+    const at::Tensor &flatten_ids, bool cull, int64_t n_threads
+) {
+    return forward_outputs(
+        means2d, conics, colors, opacities, backgrounds, image_width, image_height, tile_size, isect_offsets,
+        flatten_ids, cull, n_threads, false
+    );
+}
+
+std::vector<at::Tensor> rasterize_weights(
+    const at::Tensor &means2d, const at::Tensor &conics, const at::Tensor &colors,
+    const at::Tensor &opacities, const std::optional<at::Tensor> &backgrounds, int64_t image_width,
+    int64_t image_height, int64_t tile_size, const at::Tensor &isect_offsets,
+    const at::Tensor &flatten_ids, bool cull, int64_t n_threads
+) {
+    auto out = forward_outputs(
+        means2d, conics, colors, opacities, backgrounds, image_width, image_height, tile_size, isect_offsets,
+        flatten_ids, cull, n_threads, true
+    );
+    return {out[0], out[1], out[4]};
 }
 
 // Returns (v_means2d [C,N,2], v_conics [C,N,3], v_colors [C,N,D], v_opacities [C,N]).

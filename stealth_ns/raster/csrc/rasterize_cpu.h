@@ -17,6 +17,16 @@ std::vector<at::Tensor> rasterize_fwd(
     const at::Tensor &flatten_ids, bool cull, int64_t n_threads
 );
 
+// (render_colors [C,H,W,D], render_alphas [C,H,W,1], weights [C,N]): the forward, and each Gaussian's
+// blending weight, T * alpha summed over the pixels it is blended into (what the backward gives as the
+// gradient of the colour sum with respect to the Gaussian's colour), without a backward pass.
+std::vector<at::Tensor> rasterize_weights(
+    const at::Tensor &means2d, const at::Tensor &conics, const at::Tensor &colors,
+    const at::Tensor &opacities, const std::optional<at::Tensor> &backgrounds, int64_t image_width,
+    int64_t image_height, int64_t tile_size, const at::Tensor &isect_offsets,
+    const at::Tensor &flatten_ids, bool cull, int64_t n_threads
+);
+
 // (v_means2d [C,N,2], v_conics [C,N,3], v_colors [C,N,D], v_opacities [C,N]).
 std::vector<at::Tensor> rasterize_bwd(
     const at::Tensor &means2d, const at::Tensor &conics, const at::Tensor &colors,
