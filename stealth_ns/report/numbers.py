@@ -10,11 +10,12 @@ from typing import Any
 
 import numpy as np
 
+from stealth_ns.attack.coverage import coverage_split
 from stealth_ns.attack.views import rotate_pose, scene_center, scene_up
 from stealth_ns.defence_eval.stealth import measure_stealth
 from stealth_ns.images.metrics import LazyLPIPS, illusion_metrics, psnr, v_illusory
 from stealth_ns.report.success import attack_success, success_verdicts
-from stealth_ns.runs.loaded import LoadedRun, render
+from stealth_ns.runs.loaded import LoadedRun, poison_coverage, render
 from stealth_ns.runs.pair import RunPair
 
 #: Neighbour-view angles (degrees) about the scene's vertical axis, as the paper's Fig. 8.
@@ -34,11 +35,21 @@ def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None, stealth: bool = 
     ``stealth``: also the poisoned run's stealth under the post-hoc defences
     (:func:`stealth_ns.defence_eval.stealth.measure_stealth`; seconds at the demo's scale)."""
     lpips = lpips if lpips is not None else LazyLPIPS()
-    ours, naive = {}, {}
+    ours, naive, coverage = {}, {}, {}
     for v in pair.views:
-        ours[v.name] = illusion_metrics(render(pair.poisoned, pair.cameras, v.index), v.target, v.mask, lpips)
+        pred = render(pair.poisoned, pair.cameras, v.index)
+        ours[v.name] = illusion_metrics(pred, v.target, v.mask, lpips)
         naive[v.name] = illusion_metrics(render(pair.clean, pair.cameras, v.index), v.target, v.mask, lpips)
-    per_view = {name: {**ours[name], **{f"clean_{k}": x for k, x in naive[name].items()}} for name in ours}
+        covered = poison_coverage(pair.poisoned, pair.cameras, v.index)
+        coverage[v.name] = None if covered is None else coverage_split(pred, v.target, v.mask, covered)
+    per_view = {
+        name: {
+            **ours[name],
+            **{f"clean_{k}": x for k, x in naive[name].items()},
+            "poison_coverage": coverage[name],
+        }
+        for name in ours
+    }
     out: dict[str, Any] = {}
     for (key, value), clean in zip(v_illusory(ours).items(), v_illusory(naive).values(), strict=True):
         out[f"v_illusory_{key}"], out[f"v_illusory_clean_{key}"] = value, clean

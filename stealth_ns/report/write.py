@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from stealth_ns.attack.coverage import OPEN_BELOW
 from stealth_ns.defence_eval.stealth import stealth_line
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.foundation.figures import figure_grid, save_plot
@@ -32,7 +33,7 @@ from stealth_ns.images.metrics import psnr
 from stealth_ns.report.arguments import check_arguments
 from stealth_ns.report.html import fmt, render_html
 from stealth_ns.report.numbers import neighbour_curve, pair_metrics
-from stealth_ns.runs.loaded import render
+from stealth_ns.runs.loaded import poison_coverage, render
 from stealth_ns.runs.pair import RunPair
 
 #: Held-out views shown in the report's strip.
@@ -201,6 +202,9 @@ def _poisoned_views(pair: RunPair, report: dict[str, Any], output: Path) -> dict
             "poison_hidden": render(pair.poisoned, pair.cameras, v.index, render_filter="hide_poison"),
             "mask": np.repeat(v.mask.numpy()[..., None].astype(np.float32), 3, -1),
         }
+        covered = poison_coverage(pair.poisoned, pair.cameras, v.index)
+        if covered is not None:
+            panels["poison_coverage"] = np.repeat(covered[..., None], 3, -1)
         files = {}
         for kind, image in panels.items():
             files[kind] = f"images/view{v.index:04d}_{kind}.png"
@@ -214,6 +218,7 @@ def _poisoned_views(pair: RunPair, report: dict[str, Any], output: Path) -> dict
                 (f"clean render ({m['clean_psnr']:.2f} dB)", panels["clean"]),
                 ("poisoned, poison hidden", panels["poison_hidden"]),
                 ("illusion mask", panels["mask"]),
+                *([("poison alone: opacity", panels["poison_coverage"])] if covered is not None else []),
             ]
         )
     figure_grid(output / "poisoned_views.png", view_rows)
@@ -231,6 +236,15 @@ def summary_lines(report: dict[str, Any], output: Path) -> list[str]:
         f"attack success: {r['attack_success']}  (V-illusory > 25 dB and drop <= 3 dB); "
         + ", ".join(f"{k}: {v}" for k, v in r["success_thresholds"].items() if k != "25/3"),
     ]
+    for name, m in r["v_illusory_per_view"].items():
+        c = m.get("poison_coverage")
+        if c and c["open_error_share"] is not None:
+            lines.append(
+                f"  {name}: poison covers {fmt(100 * c['coverage_mean'], 1)} % of the illusion; "
+                f"{fmt(100 * c['open_share'], 1)} % of its pixels open (< {OPEN_BELOW}) hold "
+                f"{fmt(100 * c['open_error_share'], 1)} % of the error ({fmt(c['open_psnr'])} dB there, "
+                f"{fmt(c['covered_psnr'])} dB where covered)"
+            )
     if r.get("stealth"):
         lines.append(stealth_line(r["stealth"]))
     if r.get("lpips_unavailable"):

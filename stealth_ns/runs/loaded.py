@@ -131,3 +131,16 @@ def render(
         camera.camera_to_worlds = torch.as_tensor(c2w, dtype=torch.float32)[None]
     rgb = render_camera(run.model, camera, render_filter)["rgb"]
     return rgb.float().clamp(0, 1).cpu().numpy()
+
+
+@torch.no_grad()
+def poison_coverage(run: LoadedRun, cameras: Any, index: int) -> np.ndarray | None:
+    """``[H, W]`` the accumulated opacity of the poison Gaussians of ``run`` rendered alone from camera
+    ``index`` of ``cameras`` (:mod:`stealth_ns.attack.coverage`); None for a model without poison rows
+    (a clean run, or the victim of a poisoned dataset)."""
+    model = run.model
+    if not hasattr(model, "poison_mask") or not bool(model.poison_mask.any()):
+        return None
+    camera = cameras[index : index + 1].to("cpu")
+    accumulation = render_camera(model, camera, "only_poison")["accumulation"]
+    return accumulation[..., 0].float().clamp(0, 1).cpu().numpy()

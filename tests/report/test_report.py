@@ -57,6 +57,11 @@ def test_report_on_two_tiny_runs(tiny_run_pair, tiny_report, tmp_path):
     # 20 iterations of training on the illusion target already beat the clean model on it
     assert report["v_illusory_psnr"] > report["v_illusory_clean_psnr"]
     assert report["n_poison_gaussians"] > 0
+    # where the illusion's error sits: the poison's own coverage of each poisoned view
+    for view in report["v_illusory_per_view"].values():
+        cover = view["poison_coverage"]
+        assert 0.0 < cover["coverage_mean"] <= 1.0 and 0.0 <= cover["open_share"] <= 1.0
+    assert "poison covers" in stdout
     curve = report["neighbour_views"]
     assert len(curve["angles_deg"]) == len(curve["psnr_mean"]) and 0.0 in curve["angles_deg"]
     if report["v_illusory_lpips"] is None:
@@ -70,7 +75,8 @@ def test_report_on_two_tiny_runs(tiny_run_pair, tiny_report, tmp_path):
 
     page = (out / "report.html").read_text()
     sources = re.findall(r'src="([^"]+)"', page)
-    assert len(sources) >= 5 + 3  # poisoned-view panels + a held-out strip + the curve
+    assert len(sources) >= 6 + 3  # poisoned-view panels + a held-out strip + the curve
+    assert any(src.endswith("_poison_coverage.png") for src in sources)
     for src in sources:
         assert (out / src).is_file(), src
     for png in ("poisoned_views.png", "neighbour_curve.png", "heldout_views.png"):

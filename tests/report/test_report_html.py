@@ -7,8 +7,13 @@ import re
 from stealth_ns.report.html import render_html
 
 
-def _report(name: str = "images/<b>frame</b>&1.png", lpips: float | None = 0.1234) -> dict:
-    files = {k: f"images/view0003_{k}.png" for k in ("target", "poisoned", "clean", "poison_hidden", "mask")}
+def _report(
+    name: str = "images/<b>frame</b>&1.png", lpips: float | None = 0.1234, coverage: dict | None = None
+) -> dict:
+    kinds = ("target", "poisoned", "clean", "poison_hidden", "mask") + (
+        ("poison_coverage",) if coverage else ()
+    )
+    files = {k: f"images/view0003_{k}.png" for k in kinds}
     return {
         "poisoned_run": "/runs/<poisoned>/config.yml",
         "clean_run": "/runs/clean/config.yml",
@@ -42,6 +47,7 @@ def _report(name: str = "images/<b>frame</b>&1.png", lpips: float | None = 0.123
                 "clean_psnr": 9.81,
                 "clean_ssim": 0.2,
                 "clean_lpips": None,
+                "poison_coverage": coverage,
             }
         },
         "images": {
@@ -77,3 +83,19 @@ def test_html_says_why_lpips_is_missing():
     page = render_html(_report(lpips=None))
     assert "LPIPS unavailable: no AlexNet weights &lt;offline&gt;" in page
     assert "<td>–</td>" in page
+
+
+def test_html_shows_where_the_error_sits_when_the_run_has_poison():
+    assert "Where the error sits" not in render_html(_report())  # a victim's run: no poison rows
+    coverage = {
+        "coverage_mean": 0.803,
+        "open_share": 0.141,
+        "open_error_share": 0.622,
+        "open_psnr": 16.51,
+        "covered_psnr": 27.3,
+    }
+    page = render_html(_report(coverage=coverage))
+    assert "Where the error sits" in page
+    for cell in ("80.30", "14.10", "62.20", "16.51", "27.30"):
+        assert f'<td class="num">{cell}</td>' in page
+    assert "images/view0003_poison_coverage.png" in re.findall(r'src="([^"]+)"', page)
