@@ -9,9 +9,9 @@ illusion lacks poison (holes: the error sits in open pixels) or lacks detail whe
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from stealth_ns.images.metrics import masked_psnr
 
 __all__ = ["OPEN_BELOW", "coverage_split"]
 
@@ -52,14 +52,6 @@ def coverage_split(
         "coverage_mean": float(cov[m].mean()),
         "open_share": float(open_.sum() / m.sum()),
         "open_error_share": float(err[open_].sum() / total) if total > 0 else None,
-        "open_psnr": _psnr(err, open_),
-        "covered_psnr": _psnr(err, covered),
+        "open_psnr": masked_psnr(pred, target, open_) if open_.any() else None,
+        "covered_psnr": masked_psnr(pred, target, covered) if covered.any() else None,
     }
-
-
-def _psnr(err: np.ndarray, pixels: np.ndarray) -> float | None:
-    """PSNR (dB) of the per-pixel squared errors ``err`` over ``pixels``; None when there are none."""
-    if not pixels.any():
-        return None
-    mse = float(err[pixels].mean())
-    return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
