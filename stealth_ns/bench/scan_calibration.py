@@ -11,8 +11,11 @@ not recorded always does), is detailed enough to hold a picture (the scan's fixe
 calls a model suspicious when some group counts, and it is *right* on
 
 * a clean model when no group counts;
-* a poisoned model (attack succeeded) when some group counts and every group that does is in a
-  tampered view.
+* a poisoned model (attack succeeded) when some group in a tampered view counts and every group that
+  counts is *on target* (:func:`on_target`): in a tampered view, or mostly poison by the run's tag (the
+  attack's poison drawn into a view it was not aimed at: naming that view removes poison, not the
+  scene). Rows without the groups' poison shares (written before they were recorded) fall back on
+  the views alone.
 
 Runs whose attack failed are neither fitted nor scored (there may be no illusion to find).
 
@@ -34,8 +37,18 @@ from typing import Any
 from stealth_ns.scan.config import ScanConfig
 
 Row = dict[str, Any]
-#: The counts of a confusion table at one threshold.
-COUNTS: tuple[str, ...] = ("clean_clean", "clean_suspicious", "found", "wrong_view", "missed")
+#: The counts of a confusion table at one threshold; ``leaked`` counts the ``found`` models that also
+#: name a view off the tampered ones for a group of their poison.
+COUNTS: tuple[str, ...] = ("clean_clean", "clean_suspicious", "found", "leaked", "wrong_view", "missed")
+#: A group at least this share of whose Gaussians carry the run's poison tag is poison, wherever it is.
+POISON_MAJORITY = 0.5
+
+
+def on_target(group: dict[str, Any], tampered: set[int]) -> bool:
+    """Whether naming ``group``'s view is right on a poisoned run: the view is one of ``tampered`` (training
+    indices of the poisoned and support views), or the group is poison (its recorded ``poison`` share
+    reaches :data:`POISON_MAJORITY`)."""
+    return group["index"] in tampered or (group.get("poison") or 0.0) >= POISON_MAJORITY
 
 
 def scored(rows: Sequence[Row]) -> list[Row]:
@@ -49,20 +62,25 @@ def _groups(row: Row, size: float) -> list[dict[str, Any]]:
     return [g for g in row["groups"] if g.get("gaussians", math.inf) >= size and g.get("detailed", True)]
 
 
-def _shares(row: Row, size: float = 0) -> tuple[float, float]:
-    """``(hit, wrong)``: the largest region share among the groups (of at least ``size`` Gaussians)
-    in tampered views and among the others (0 where there is none)."""
+def _shares(row: Row, size: float = 0) -> tuple[float, float, float]:
+    """``(hit, leaked, wrong)``: the largest region share among the groups (of at least ``size``
+    Gaussians) in tampered views, among the poison groups in other views and among the groups off
+    target (:func:`on_target`; on a clean run every group is); 0 where there is none."""
     tampered = set(row.get("tampered") or [])
     groups = _groups(row, size)
+    if not row["poisoned"]:
+        return 0.0, 0.0, max((g["share"] for g in groups), default=0.0)
     hit = max((g["share"] for g in groups if g["index"] in tampered), default=0.0)
-    wrong = max((g["share"] for g in groups if g["index"] not in tampered), default=0.0)
-    return hit, wrong
+    leaked = max((g["share"] for g in groups if g["index"] not in tampered and on_target(g, tampered)),
+                 default=0.0)  # fmt: skip
+    wrong = max((g["share"] for g in groups if not on_target(g, tampered)), default=0.0)
+    return hit, leaked, wrong
 
 
 def right_at(row: Row, threshold: float, size: float = 0) -> bool:
     """Whether the scan at region threshold ``threshold`` and group size ``size`` is right on ``row``
     (module docstring)."""
-    hit, wrong = _shares(row, size)
+    hit, _, wrong = _shares(row, size)
     if not row["poisoned"]:
         return wrong < threshold
     return hit >= threshold > wrong
@@ -76,8 +94,8 @@ def margin(row: Row, threshold: float, size: float = 0) -> float:
     """How far ``row`` is from ``threshold``, as a factor (> 1: right with room, < 1: wrong).
 
     Clean: the threshold over its largest share. Poisoned: the smaller of its tampered share over
-    the threshold and the threshold over its largest share elsewhere (groups of at least ``size``)."""
-    hit, wrong = _shares(row, size)
+    the threshold and the threshold over its largest share off target (groups of at least ``size``)."""
+    hit, _, wrong = _shares(row, size)
     below = threshold / wrong if wrong > 0 else math.inf
     if not row["poisoned"]:
         return below
@@ -86,7 +104,7 @@ def margin(row: Row, threshold: float, size: float = 0) -> float:
 
 def _best_threshold(rows: Sequence[Row], size: float) -> tuple[int, float, float]:
     """``(rows right, log width of its gap, threshold)`` of the best threshold at group size ``size``."""
-    values = sorted({s for r in rows for s in _shares(r, size) if s > 0})
+    values = sorted({s for r in rows for s in _shares(r, size)[::2] if s > 0})
     if not values:  # no group anywhere: every threshold is as good as the scan's own
         t = ScanConfig.region_threshold
         return sum(right_at(r, t, size) for r in rows), math.inf, t
@@ -144,15 +162,18 @@ def split_scenes(scenes: Sequence[str], first: Sequence[str] = ()) -> tuple[list
 
 def confusion_at(rows: Sequence[Row], threshold: float, size: float = 0) -> dict[str, int]:
     """Counts at ``threshold`` and group size ``size``: clean models called clean / suspicious;
-    poisoned models found with the right views / suspicious but naming a wrong view / called clean."""
+    poisoned models found with the right views (and of them, those also naming a view their poison
+    leaked into) / suspicious but naming a wrong view / called clean."""
     out = dict.fromkeys(COUNTS, 0)
     for r in rows:
         suspicious = verdict_at(r, threshold, size) == "suspicious"
         if not r["poisoned"]:
             out["clean_suspicious" if suspicious else "clean_clean"] += 1
+        elif right_at(r, threshold, size):
+            out["found"] += 1
+            out["leaked"] += _shares(r, size)[1] >= threshold
         else:
-            found = right_at(r, threshold, size)
-            out["found" if found else ("wrong_view" if suspicious else "missed")] += 1
+            out["wrong_view" if suspicious else "missed"] += 1
     return out
 
 
@@ -194,8 +215,8 @@ def calibration_lines(result: dict[str, Any]) -> list[str]:
         "judged on the other, then the halves swap (failed attacks left out; docs/scan.md).",
         "",
         "| fitted on | threshold | min group | judged on | clean → clean | clean → suspicious | "
-        "found (right views) | wrong view | missed |",
-        "|---|--:|--:|---|--:|--:|--:|--:|--:|",
+        "found (right views) | of them, also naming a view their poison leaked into | wrong view | missed |",
+        "|---|--:|--:|---|--:|--:|--:|--:|--:|--:|",
     ]
     for f in [*result["folds"], None]:
         c = result["confusion"] if f is None else f["confusion"]
@@ -209,7 +230,7 @@ def calibration_lines(result: dict[str, Any]) -> list[str]:
                 ", ".join(f["held_out"]),
             ]
         )
-        cells = [c["clean_clean"], c["clean_suspicious"], c["found"], c["wrong_view"], c["missed"]]
+        cells = [c[k] for k in COUNTS]
         lines.append("| " + " | ".join([*head, *map(str, cells)]) + " |")
     lines += ["", "| run | truth | threshold | margin | right |", "|---|---|--:|--:|:-:|"]
     for m in result["margins"]:

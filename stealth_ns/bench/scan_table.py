@@ -3,10 +3,11 @@ what each run is (clean, or attacked with its poisoned views): a confusion table
 largest group region as a score, and each run's row (docs/scan.md).
 
 A run is *poisoned* when it was trained with the attack or on a poisoned copy (data-only, IPA-Splat);
-the scan is *right* on a poisoned run when it calls it suspicious and every view it names is one of
-the run's poisoned views, or of their support views (docs/stealth.md: their training images show the
-poison too). The poisoned runs whose attack failed (the paper's rule, from the bench's
-results when measured) are kept apart: there may be no illusion to find in them.
+the scan is *right* on a poisoned run when it names one of the run's poisoned views, or of their
+support views (docs/stealth.md: their training images show the poison too), and every group it names
+is in such a view or is poison by the run's tag (:func:`~stealth_ns.bench.scan_calibration.on_target`).
+The poisoned runs whose attack failed (the paper's rule, from the bench's results when measured) are
+kept apart: there may be no illusion to find in them.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.attack.record import AttackRecord
-from stealth_ns.bench.scan_calibration import calibration_lines, held_out
+from stealth_ns.bench.scan_calibration import calibration_lines, held_out, on_target
 from stealth_ns.bench.scan_runs import (
     PLYS_DIR,
     RECORD,
@@ -44,7 +45,7 @@ from stealth_ns.runs.imported import ImportedModel, load_model
 from stealth_ns.runs.loaded import attack_record
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.outputs import ground_truth
-from stealth_ns.scan.scanner import scan_model
+from stealth_ns.scan.scanner import Group, scan_model
 from stealth_ns.scan.verdict import is_detailed
 
 
@@ -76,6 +77,8 @@ def scan_run(
     t0 = time.perf_counter()
     imported = load_model(run["config"])
     record = None if run["clean"] else attack_record(imported.run, run["config"])
+    tag = imported.cloud.extra.get("poison")  # the foreign PLY keeps the rows' order, not the tag
+    poison = None if tag is None else np.asarray(tag) > 0
     if ply is not None:
         imported = load_model(as_foreign_ply(imported, ply, frame), imported.run.data)
     truth, support, poisoned, tampered = [], [], set(), set()
@@ -87,10 +90,12 @@ def scan_run(
         poisoned = {v.index for v in record.views}
         tampered = poisoned | set(record.support_targets)
     result = scan_model(imported, cfg)
+    groups = [_group_row(g, cfg, poison) for g in result.groups]
     named = [g.name for g in result.targeted]
     named_views = {g.view for g in result.targeted}
     failed = not run["clean"] and run["success"] is False
-    right = (not named) if run["clean"] else bool(named) and named_views <= tampered
+    on = [on_target(row, tampered) for g, row in zip(result.groups, groups, strict=True) if g.targeted]
+    right = (not named) if run["clean"] else bool(named_views & tampered) and all(on)
     return {
         "run": run["key"],
         "scene": run["scene"],
@@ -106,23 +111,29 @@ def scan_run(
         "right": right,
         "views_found": len(named_views & poisoned),
         "largest_region": result.groups[0].region.share if result.groups else 0.0,
-        "groups": [
-            {
-                "view": g.name,
-                "index": g.view,
-                "share": round(g.region.share, 6),
-                "gaussians": int(g.members.sum()),
-                "pixels": g.region.pixels,
-                "detailed": is_detailed(g.region.pixels, int(g.members.sum()), cfg.max_pixels_per_gaussian),
-            }
-            for g in result.groups
-        ],
+        "groups": groups,
         "tampered": sorted(tampered),
         "gaussians": int(result.flagged.shape[0]),
         "ground_truth": ground_truth(result),
         "frame": imported.frame,
         "cleaned": None if record is None else cleaning_effect(imported, record, result.removed),
         "seconds": round(time.perf_counter() - t0, 1),
+    }
+
+
+def _group_row(group: Group, cfg: ScanConfig, poison: np.ndarray | None) -> dict[str, Any]:
+    """A group as a row records it: its view, region, size, whether it is detailed enough to hold a
+    picture and (``poison``: the run's ``[N]`` bool tag, or None) the share of its Gaussians that are
+    poison."""
+    n = int(group.members.sum())
+    return {
+        "view": group.name,
+        "index": group.view,
+        "share": round(group.region.share, 6),
+        "gaussians": n,
+        "pixels": group.region.pixels,
+        "detailed": is_detailed(group.region.pixels, n, cfg.max_pixels_per_gaussian),
+        "poison": None if poison is None or n == 0 else round(float(poison[group.members].mean()), 4),
     }
 
 

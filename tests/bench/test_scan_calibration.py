@@ -20,16 +20,22 @@ from stealth_ns.bench.scan_calibration import (
 )
 
 
-def row(scene, run, groups, tampered=(), failed=False):
+def row(scene, run, groups, tampered=(), failed=False, poison=None):
     """A bench scan row: ``groups`` as (view index, share) or (view index, share, Gaussians); poisoned
-    when ``tampered`` names views."""
+    when ``tampered`` names views; ``poison``: view index -> the group's poison share."""
     return {
         "run": f"{scene}/{run}",
         "scene": scene,
         "poisoned": bool(tampered),
         "attack_failed": failed,
         "groups": [
-            {"view": f"v{g[0]}", "index": g[0], "share": g[1], **({"gaussians": g[2]} if len(g) > 2 else {})}
+            {
+                "view": f"v{g[0]}",
+                "index": g[0],
+                "share": g[1],
+                **({"gaussians": g[2]} if len(g) > 2 else {}),
+                **({"poison": poison[g[0]]} if poison and g[0] in poison else {}),
+            }
             for g in groups
         ],
         "tampered": list(tampered),
@@ -45,11 +51,25 @@ def test_right_needs_the_poisoned_view_and_nothing_else():
     assert not right_at(poisoned, 0.1)  # missed
     assert not right_at(wrong, 0.01)
     assert confusion_at([clean, poisoned, wrong], 0.01) == {
-        "clean_clean": 1, "clean_suspicious": 0, "found": 1, "wrong_view": 1, "missed": 0,
+        "clean_clean": 1, "clean_suspicious": 0, "found": 1, "leaked": 0, "wrong_view": 1, "missed": 0,
     }  # fmt: skip
     assert confusion_at([clean, poisoned], 0.003)["clean_suspicious"] == 1
     assert margin(clean, 0.01) == pytest.approx(2.5) and margin(poisoned, 0.01) == pytest.approx(2.5)
     assert margin(row("a", "empty", []), 0.01) == math.inf
+
+
+def test_a_named_view_whose_group_is_poison_is_a_leak_not_a_wrong_view():
+    # v3's group is the poison of v5 drawn into v3: naming v3 is on target
+    leak = row("a", "leak", [(5, 0.08), (3, 0.02)], tampered=[5], poison={5: 1.0, 3: 0.9})
+    stray = row("a", "stray", [(5, 0.08), (3, 0.02)], tampered=[5], poison={5: 1.0, 3: 0.1})
+    only_leak = row("a", "only", [(3, 0.08)], tampered=[5], poison={3: 1.0})
+    assert right_at(leak, 0.01) and not right_at(stray, 0.01)
+    assert not right_at(only_leak, 0.01)  # the poisoned view itself must be named
+    counts = confusion_at([leak, stray, only_leak], 0.01)
+    assert (counts["found"], counts["leaked"], counts["wrong_view"]) == (1, 1, 2)
+    assert confusion_at([leak], 0.03)["leaked"] == 0  # the leak's group is below this threshold
+    # a clean run's groups are never on target, whatever they record
+    assert not right_at(row("a", "clean", [(3, 0.02)], poison={3: 1.0}), 0.01)
 
 
 def test_the_threshold_is_the_log_middle_of_the_widest_right_gap():
@@ -82,6 +102,7 @@ def test_held_out_folds_fit_on_one_half_and_judge_the_other():
         "clean_clean": 1,
         "clean_suspicious": 0,
         "found": 1,
+        "leaked": 0,
         "wrong_view": 0,
         "missed": 0,
     }
@@ -118,6 +139,7 @@ def test_the_group_size_is_chosen_with_the_threshold():
         "clean_clean": 2,
         "clean_suspicious": 0,
         "found": 2,
+        "leaked": 0,
         "wrong_view": 0,
         "missed": 0,
     }
