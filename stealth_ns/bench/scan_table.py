@@ -77,8 +77,7 @@ def scan_run(
     t0 = time.perf_counter()
     imported = load_model(run["config"])
     record = None if run["clean"] else attack_record(imported.run, run["config"])
-    tag = imported.cloud.extra.get("poison")  # the foreign PLY keeps the rows' order, not the tag
-    poison = None if tag is None else np.asarray(tag) > 0
+    poison = imported.cloud.poison_mask()  # the foreign PLY keeps the rows' order, not the tag
     if ply is not None:
         imported = load_model(as_foreign_ply(imported, ply, frame), imported.run.data)
     truth, support, poisoned, tampered = [], [], set(), set()

@@ -68,6 +68,14 @@ class GaussianCloud:
     def sh_degree(self) -> int:
         return int(round(np.sqrt(self.sh_rest.shape[1] + 1))) - 1
 
+    def poison_mask(self) -> np.ndarray | None:
+        """``[N]`` bool: the rows stealth-ns's ``poison`` tag marks; None when the cloud carries no tag, or
+        one of another length than its rows."""
+        tag = self.extra.get("poison")
+        if tag is None or len(tag) != len(self):
+            return None
+        return np.asarray(tag) > 0
+
     def subset(self, rows: np.ndarray) -> GaussianCloud:
         """The rows selected by ``rows`` (a bool mask or indices)."""
         return GaussianCloud(

@@ -80,10 +80,9 @@ def group_entry(group: Group) -> dict[str, Any]:
 
 def ground_truth(result: ScanResult) -> dict[str, Any] | None:
     """How the scan compares with the poison tag the model carries, or None without one."""
-    tag = result.model.cloud.extra.get("poison")
-    if tag is None or len(tag) != len(result.flagged):
+    poison = result.model.cloud.poison_mask()
+    if poison is None or len(poison) != len(result.flagged):
         return None
-    poison = np.asarray(tag) > 0
     removed = result.removed
     return {
         "n_poison": int(poison.sum()),

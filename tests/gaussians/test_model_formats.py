@@ -125,6 +125,15 @@ def one_line_error(call, *words: str) -> str:
 # ----------------------------------------------------------------------------------- round trips
 
 
+def test_the_poison_mask_is_the_tag_or_none():
+    tagged = random_cloud(20, 1, extra=True)
+    assert np.array_equal(tagged.poison_mask(), tagged.extra["poison"] > 0)
+    assert tagged.subset(np.arange(5)).poison_mask().shape == (5,)
+    assert random_cloud(20, 1).poison_mask() is None  # no tag
+    tagged.extra["poison"] = tagged.extra["poison"][:-1]
+    assert tagged.poison_mask() is None  # a tag of another length than the rows
+
+
 def test_a_standard_ply_goes_through_the_dispatch_unchanged(tmp_path):
     cloud = random_cloud(30, 3, extra=True)
     path = tmp_path / "model.ply"
