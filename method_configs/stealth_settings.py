@@ -40,6 +40,16 @@ STEALTH_SETTINGS: tuple[tuple[str, AttackSettings, str], ...] = (
         AttackSettings.of(depth_floor=0.3, support_views=3),
         "depth floor 0.3 + support views 3 (adaptive)",
     ),
+    (
+        "ad-floor-0.45-support-3",
+        AttackSettings.of(depth_floor=0.45, support_views=3),
+        "depth floor 0.45 + support views 3 (adaptive)",
+    ),
+    (
+        "ad-floor-0.6-support-3",
+        AttackSettings.of(depth_floor=0.6, support_views=3),
+        "depth floor 0.6 + support views 3 (adaptive)",
+    ),
     ("ad-whitebox", AttackSettings.of(proximity_weight=1.0), "white-box proximity term (adaptive)"),
     (
         "ad-whitebox-support-3",
@@ -47,11 +57,14 @@ STEALTH_SETTINGS: tuple[tuple[str, AttackSettings, str], ...] = (
         "white-box proximity term + support views 3 (adaptive)",
     ),
 )
-#: Table 9's settings: adaptive attacks, aimed at camera-proximity and the scan as they are (issue 60).
+#: Table 9's settings: adaptive attacks, aimed at camera-proximity and the scan as they are (issue 60);
+#: the deeper floors at the scan's scene-level near line (docs/scan.md).
 ADAPTIVE_VARIANTS: tuple[str, ...] = (
     "ad-floor-0.15",
     "ad-floor-0.3",
     "ad-floor-0.3-support-3",
+    "ad-floor-0.45-support-3",
+    "ad-floor-0.6-support-3",
     "ad-whitebox",
     "ad-whitebox-support-3",
 )

@@ -110,6 +110,7 @@ def scan_run(
         "right": right,
         "views_found": len(named_views & poisoned),
         "largest_region": result.groups[0].region.share if result.groups else 0.0,
+        "near_depth_share": round(result.near_share, 4),
         "groups": groups,
         "tampered": sorted(tampered),
         "gaussians": int(result.flagged.shape[0]),

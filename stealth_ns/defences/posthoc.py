@@ -34,6 +34,7 @@ from stealth_ns.defences.signals import (
     FineTune,
     frustum_depth_ratios,
     gradient_energy_matrix,
+    near_depth_share,
     view_weights_and_depths,
 )
 from stealth_ns.method.camera_geometry import CameraGeometry, camera_geometry, geometry_of
@@ -76,13 +77,20 @@ class DefenceInputs:
     """The run's final Adam rate of each trainable parameter (grad-concentration's fine-tune)."""
     _weights: np.ndarray | None = None
     _depths: np.ndarray | None = None
+    _nears: np.ndarray | None = None
 
     def view_weights(self) -> np.ndarray:
         """``[N, V]`` blending weights, computed once (count-cap and view-support share them), with
         each view's scene depth from the same renders (camera-proximity's, :meth:`geometry`)."""
         if self._weights is None:
-            self._weights, self._depths = view_weights_and_depths(self.model, self.cameras)
+            self._weights, self._depths, self._nears = view_weights_and_depths(self.model, self.cameras)
         return self._weights
+
+    def near_share(self) -> float:
+        """The scene's near depth as a share of each view's median depth
+        (:func:`~stealth_ns.defences.signals.near_depth_share`), from the view weights' renders."""
+        self.view_weights()
+        return near_depth_share(self._depths, self._nears)
 
     def geometry(self) -> CameraGeometry:
         """The cameras with each one's median rendered depth: from the view weights' renders when

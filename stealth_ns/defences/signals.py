@@ -18,6 +18,7 @@ Poison is meant to be seen from one view, so its support and its gradient concen
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -26,6 +27,7 @@ import torch
 from torch import Tensor
 
 from stealth_ns.attack.injection import median_scene_depth
+from stealth_ns.attack.visibility import SURFACE_ALPHA
 from stealth_ns.defences import scores
 from stealth_ns.method.model import POISON_TAG, StealthSplatModel
 from stealth_ns.raster.cpp_backend import load_extension
@@ -60,27 +62,55 @@ def view_weight_matrix(model: StealthSplatModel, cameras: object, desc: str = "v
     return view_weights_and_depths(model, cameras, desc, with_depths=False)[0]
 
 
+#: The quantile of a view's surface depths that stands for the nearest things it shows: low enough
+#: for the near walls and floor of a walk-through to count, above the few pixels of a stray floater.
+NEAR_DEPTH_QUANTILE = 0.05
+
+
+def near_surface_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
+    """The :data:`NEAR_DEPTH_QUANTILE` quantile of the rendered z-depth (scene units) of the pixels that
+    show a surface (as :func:`~stealth_ns.attack.injection.median_scene_depth` counts them), ``fallback``
+    when none does."""
+    surface = depth[(alpha >= SURFACE_ALPHA) & torch.isfinite(depth) & (depth > 0)].reshape(-1)
+    if not surface.numel():
+        return fallback
+    k = max(1, math.ceil(NEAR_DEPTH_QUANTILE * surface.numel()))
+    return float(surface.kthvalue(k).values)
+
+
+def near_depth_share(medians: np.ndarray, nears: np.ndarray) -> float:
+    """The scene's near depth as a share of a view's median depth: the median over the views (``[V]``
+    each, NaN where a view shows no surface) of ``nears / medians``; 1.0 when no view shows a surface.
+    A median over the views, so that one view filled by something close (an illusion) moves it little."""
+    medians, nears = np.asarray(medians, dtype=np.float64), np.asarray(nears, dtype=np.float64)
+    ok = np.isfinite(medians) & np.isfinite(nears) & (medians > 0)
+    return float(np.median(nears[ok] / medians[ok])) if ok.any() else 1.0
+
+
 @torch.no_grad()
 def view_weights_and_depths(
     model: StealthSplatModel, cameras: object, desc: str = "view support", with_depths: bool = True
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`view_weight_matrix`'s ``[N, V]`` weights and ``[V]`` each view's median rendered z-depth
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`view_weight_matrix`'s ``[N, V]`` weights, ``[V]`` each view's median rendered z-depth
     of the pixels that show a surface (:func:`~stealth_ns.attack.injection.median_scene_depth`, NaN
-    where none does; all NaN without ``with_depths``), read off the same renders: camera-proximity's
-    scene depths (:func:`stealth_ns.method.camera_geometry.geometry_of`) without rendering again."""
+    where none does; all NaN without ``with_depths``) and ``[V]`` each view's near depth
+    (:func:`near_surface_depth`, NaN likewise), read off the same renders: camera-proximity's scene
+    depths (:func:`stealth_ns.method.camera_geometry.geometry_of`) without rendering again."""
     n_views = len(cameras)
     out = np.zeros((model.num_points, n_views), dtype=np.float32)
     depths = np.full(n_views, np.nan)
+    nears = np.full(n_views, np.nan)
     with _progress(n_views, desc) as bar:
         for v in range(n_views):
             if with_depths:
                 weights, depth, alpha = model.blend_weights(cameras[v : v + 1], with_depth=True)
                 depths[v] = median_scene_depth(depth, alpha, np.nan)
+                nears[v] = near_surface_depth(depth, alpha, np.nan)
             else:
                 weights = model.blend_weights(cameras[v : v + 1])
             out[:, v] = weights.cpu().numpy()
             bar.update(1)
-    return out, depths
+    return out, depths, nears
 
 
 @dataclass(frozen=True)

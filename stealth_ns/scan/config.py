@@ -22,12 +22,14 @@ class ScanConfig:
     concentration_threshold: float = 0.5
     """view-support / grad-concentration flag a Gaussian seen by fewer than 1/threshold effective
     views (defend's default: 2 views)."""
-    proximity_threshold: float = 0.3
+    proximity_threshold: float = 0.75
     """camera-proximity flags a Gaussian nearer a training camera that has it in view than this share
-    of the camera's median scene depth. Looser than defend's 0.15 (which prunes no clean Gaussian):
-    the verdict's region test, not the flag, keeps clean models clean, and at 0.15 the support-views
-    variant's poison on ``orbit`` (placed deeper, for K + 1 views to see it) was flagged at 13 % only
-    and missed (docs/scan.md)."""
+    of the camera's near depth: the scene's near-depth share (the median over the training views of
+    each one's 5th-percentile surface depth over its median) times the camera's median scene depth.
+    Measured (docs/scan.md): that share is 0.38-0.40 on a walk-through (``forward``), 0.72-0.74 on ``fox``;
+    0.75 of it puts the line at 0.29 of the median depth on ``forward``, whose clean model names views
+    with the line at 0.4, and at 0.55 on ``fox``, beyond the poison of the adaptive attack aimed at a
+    line at 0.3 of the median. defend's own rule (0.15 of the median) prunes no clean Gaussian."""
     min_group: int = 5
     """Fewest flagged Gaussians that make a group worth rendering (fewer cannot cover a region)."""
     opaque: float = 0.5
@@ -35,10 +37,11 @@ class ScanConfig:
     depth_ratio: float = 0.5
     """...and the group's expected depth is below this share of the rest's there (it floats in front
     of a surface)..."""
-    near_ratio: float = 0.3
-    """...and below this share of the view's median scene depth (it floats near the camera). Measured
-    (docs/scan.md): the poison's pixels sit at 0.03-0.22 of it, the edge of a capture that one view
-    sees alone (the rearmost view of a forward trajectory) at 0.37-1.0."""
+    near_ratio: float = 0.75
+    """...and below this share of the view's near depth (as for ``proximity_threshold``: it floats near
+    the camera). Measured (docs/scan.md): the poison's pixels sit at 0.03-0.22 of the median depth (the
+    adaptive attack's at 0.31-0.33 on ``fox``), the edge of a capture that one view sees alone (the
+    rearmost view of a forward trajectory) at 0.37-1.0."""
     colour_change: float = 0.1
     """...and removing the group changes one of its colour channels by more than this (in [0, 1])."""
     region_threshold: float = 0.01
@@ -67,17 +70,20 @@ class ScanConfig:
     seed: int = 0
     """Seed of grad-concentration's fine-tune order (everything else is deterministic)."""
 
-    def defend_config(self) -> DefendConfig:
-        """The same rules as ``stealth-ns defend`` applies them."""
+    def defend_config(self, near_share: float) -> DefendConfig:
+        """The same rules as ``stealth-ns defend`` applies them, camera-proximity's line at
+        ``proximity_threshold`` of the near depth (``near_share`` of the median depth)."""
         return DefendConfig(
             defences=self.signals,
             concentration_threshold=self.concentration_threshold,
-            proximity_threshold=self.proximity_threshold,
+            proximity_threshold=self.proximity_threshold * near_share,
             seed=self.seed,
         )
 
-    def effect_rule(self) -> EffectRule:
-        return EffectRule(self.opaque, self.depth_ratio, self.near_ratio, self.colour_change)
+    def effect_rule(self, near_share: float) -> EffectRule:
+        """The effect's thresholds, its near line at ``near_ratio`` of the near depth (``near_share`` of
+        the median depth)."""
+        return EffectRule(self.opaque, self.depth_ratio, self.near_ratio * near_share, self.colour_change)
 
     def validate(self) -> None:
         """ValueError naming the option when a value is out of range or unknown."""

@@ -105,10 +105,12 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
         "rule": (
             f"suspicious when the flagged Gaussians one view sees most cover, connected, at least "
             f"{cfg.region_threshold:.1%} of that view, floating in front of what the rest of the model shows "
-            f"there (below {cfg.depth_ratio:g} of its depth and {cfg.near_ratio:g} of the view's median "
-            f"scene depth) and changing its colour by more than {cfg.colour_change:g}, with at least one "
-            f"Gaussian per {cfg.max_pixels_per_gaussian:g} pixels of the region"
+            f"there (below {cfg.depth_ratio:g} of its depth and {cfg.near_ratio:g} of the view's near "
+            f"depth, {result.near_share:.2f} of its median scene depth) and changing its colour by more than "
+            f"{cfg.colour_change:g}, with at least one Gaussian per {cfg.max_pixels_per_gaussian:g} pixels "
+            "of the region"
         ),
+        "near_depth_share": round(result.near_share, 4),
         "model": {
             "path": str(model_path),
             "kind": imported.kind,

@@ -72,6 +72,9 @@ class ScanResult:
     """dB above a flat image of each photo's mean colour: the model's training views rendered against
     their photos (:mod:`stealth_ns.scan.fit`); NaN without photos."""
     photos: PhotoUse = field(default_factory=PhotoUse)
+    near_share: float = 1.0
+    """The scene's near depth as a share of each view's median depth
+    (:meth:`~stealth_ns.defences.posthoc.DefenceInputs.near_share`): the near lines are shares of it."""
 
     @property
     def targeted(self) -> list[Group]:
@@ -101,10 +104,12 @@ def _render(model: Any, camera: Any, keep: np.ndarray | None) -> RenderedView:
     )
 
 
-def _group_effect(model: Any, camera: Any, members: np.ndarray, cfg: ScanConfig) -> tuple[Region, dict]:
+def _group_effect(
+    model: Any, camera: Any, members: np.ndarray, cfg: ScanConfig, near_share: float
+) -> tuple[Region, dict]:
     full, rest, group = (_render(model, camera, keep) for keep in (None, ~members, members))
     depth = median_scene_depth(torch.from_numpy(full.depth), torch.from_numpy(full.alpha), np.inf)
-    region = largest_region(effect_mask(full, rest, group, depth, cfg.effect_rule()))
+    region = largest_region(effect_mask(full, rest, group, depth, cfg.effect_rule(near_share)))
     return region, {"full": full.rgb, "without": rest.rgb, "flagged": group.rgb, "effect": region.mask}
 
 
@@ -150,9 +155,13 @@ def scan_model(
     t0 = time.perf_counter()
     weights = inputs.view_weights()  # the grouping needs them, whatever the signals
     seconds["view weights"] = round(time.perf_counter() - t0, 2)
+    near_share = inputs.near_share()
+    flags, effect = cfg.proximity_threshold * near_share, cfg.near_ratio * near_share
+    lines = f"{flags:.2f} (flags) and {effect:.2f} (effect)"
+    echo(f"  near depth: {near_share:.2f} of each view's median depth; near lines at {lines} of the median")
     scored = {}
     for name in cfg.signals:
-        scored[name] = score(name, inputs, cfg.defend_config())
+        scored[name] = score(name, inputs, cfg.defend_config(near_share))
         seconds[name] = scored[name].seconds
         count = int(scored[name].pruned.sum())
         echo(f"  {name}: {count} of {model.num_points} Gaussians flagged ({scored[name].rule})")
@@ -160,9 +169,9 @@ def scan_model(
     t0 = time.perf_counter()
     groups = []
     for view, members in groups_by_view(flagged, weights, cfg.min_group).items():
-        region, renders = _group_effect(model, cameras[view : view + 1], members, cfg)
+        region, renders = _group_effect(model, cameras[view : view + 1], members, cfg, near_share)
         targeted = is_targeted(region, int(members.sum()), cfg.region_threshold, cfg.max_pixels_per_gaussian)
         groups.append(Group(view, names[view], members, region, targeted, renders if targeted else {}))
     groups.sort(key=lambda g: (-g.region.share, g.view))
     seconds["groups"] = round(time.perf_counter() - t0, 2)
-    return ScanResult(imported, cfg, scored, flagged, groups, seconds, render_match, photos)
+    return ScanResult(imported, cfg, scored, flagged, groups, seconds, render_match, photos, near_share)

@@ -54,12 +54,13 @@ def test_view_weights_bring_the_scene_depths_of_camera_proximity():
     c2w[1, :, 3] = torch.tensor([0.3, 0.0, 3.0])
     c2w[2, :, 3] = torch.tensor([0.0, 0.0, -30.0])  # looks away from every Gaussian
     cams = pinhole_cameras(c2w)
-    weights, depths = view_weights_and_depths(model, cams)
+    weights, depths, nears = view_weights_and_depths(model, cams)
     assert np.array_equal(weights, view_weight_matrix(model, cams))
     rendered = camera_geometry(model, cams).scene_depths
     assert np.isfinite(depths[:2]).all() and np.isnan(depths[2])
     assert depths[:2].tolist() == rendered[:2].tolist()
     assert rendered[2] == np.median(depths[:2])
+    assert np.isnan(nears[2]) and (0 < nears[:2]).all() and (nears[:2] <= depths[:2]).all()
 
 
 def test_kept_renders_as_if_the_rows_were_removed():

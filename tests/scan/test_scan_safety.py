@@ -120,6 +120,7 @@ def test_scan_into_a_linked_output_writes_there_and_records_it(linked_scan, tiny
     doc = json.loads((real / "scan.json").read_text())
     assert (real / doc["cleaned"]["run"]).is_file() and not Path(doc["cleaned"]["run"]).is_absolute()
     assert doc["model"]["render_match_above_flat"] >= doc["config"]["render_match_floor"]
+    assert 0 < doc["near_depth_share"] <= 1 and f"{doc['near_depth_share']:.2f} of its median" in doc["rule"]
     record = json.loads((real / ".stealth-ns-scan.json").read_text())
     assert record["written_by"] == "stealth-ns scan" and record["folders"] == []
     assert record["files"] == {k: v for k, v in digest(real).items() if k != ".stealth-ns-scan.json"}
@@ -276,7 +277,7 @@ def test_bench_scan_records_what_it_wrote(tiny_run_pair, tmp_path):
     record = json.loads((out / ".stealth-ns-bench-scan.json").read_text())
     assert record["files"] == {k: v for k, v in digest(out).items() if not k.startswith(".")}
     assert set(record["files"]) == {"scan-results.json", "scan.md", "roc.png"}
-    assert rows[0]["tampered"] == []
+    assert rows[0]["tampered"] == [] and 0 < rows[0]["near_depth_share"] <= 1
     keys = {"view", "index", "share", "gaussians", "pixels", "detailed", "poison"}
     assert rows[0]["groups"] and all(keys == set(g) for g in rows[0]["groups"])
     assert all(g["poison"] == 0.0 for g in rows[0]["groups"])  # the run's tag: a clean run has no poison
