@@ -236,10 +236,16 @@ def _seeing(
     ]
 
 
+def surface_depths(depth: Tensor, alpha: Tensor) -> Tensor:
+    """``[M]``: the rendered z-depths (scene units) of the pixels that show a surface (opacity at least
+    ``SURFACE_ALPHA``, a finite positive depth)."""
+    return depth[(alpha >= SURFACE_ALPHA) & torch.isfinite(depth) & (depth > 0)]
+
+
 def median_scene_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
     """Median rendered z-depth (scene units) of the pixels that show a surface (``fallback``,
     e.g. the distance to the density grid's centre, when none does)."""
-    surface = depth[(alpha >= SURFACE_ALPHA) & torch.isfinite(depth) & (depth > 0)]
+    surface = surface_depths(depth, alpha)
     return float(surface.median()) if surface.numel() else fallback
 
 

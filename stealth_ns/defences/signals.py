@@ -26,8 +26,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from stealth_ns.attack.injection import median_scene_depth
-from stealth_ns.attack.visibility import SURFACE_ALPHA
+from stealth_ns.attack.injection import median_scene_depth, surface_depths
 from stealth_ns.defences import scores
 from stealth_ns.method.model import POISON_TAG, StealthSplatModel
 from stealth_ns.raster.cpp_backend import load_extension
@@ -69,9 +68,8 @@ NEAR_DEPTH_QUANTILE = 0.05
 
 def near_surface_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
     """The :data:`NEAR_DEPTH_QUANTILE` quantile of the rendered z-depth (scene units) of the pixels that
-    show a surface (as :func:`~stealth_ns.attack.injection.median_scene_depth` counts them), ``fallback``
-    when none does."""
-    surface = depth[(alpha >= SURFACE_ALPHA) & torch.isfinite(depth) & (depth > 0)].reshape(-1)
+    show a surface (:func:`~stealth_ns.attack.injection.surface_depths`), ``fallback`` when none does."""
+    surface = surface_depths(depth, alpha).reshape(-1)
     if not surface.numel():
         return fallback
     k = max(1, math.ceil(NEAR_DEPTH_QUANTILE * surface.numel()))

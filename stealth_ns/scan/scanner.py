@@ -156,7 +156,7 @@ def scan_model(
     weights = inputs.view_weights()  # the grouping needs them, whatever the signals
     seconds["view weights"] = round(time.perf_counter() - t0, 2)
     near_share = inputs.near_share()
-    flags, effect = cfg.proximity_threshold * near_share, cfg.near_ratio * near_share
+    flags, effect = cfg.defend_config(near_share).proximity_threshold, cfg.effect_rule(near_share).near_ratio
     lines = f"{flags:.2f} (flags) and {effect:.2f} (effect)"
     echo(f"  near depth: {near_share:.2f} of each view's median depth; near lines at {lines} of the median")
     scored = {}
