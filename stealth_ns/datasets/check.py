@@ -21,6 +21,9 @@ first problem. The datamanager runs it at start-up (``ns-train``, with the datap
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -141,6 +144,18 @@ def _check_image(path: Path, where: str, decode: bool) -> tuple[int, int]:
     return int(image.shape[1]), int(image.shape[0])
 
 
+def _image_sizes(images: Sequence[tuple[Path, str]], decode: bool) -> list[tuple[int, int]]:
+    """:func:`_check_image` of each ``(path, where)`` of ``images``, in order. Decoding runs on every
+    core at once (the decoders release the GIL); the failure raised is the first in ``images``' order."""
+    if not decode or len(images) < 2:
+        return [_check_image(path, where, decode) for path, where in images]
+    pool = ThreadPoolExecutor(max_workers=min(len(images), os.cpu_count() or 1))
+    try:
+        return list(pool.map(lambda item: _check_image(item[0], item[1], True), images))
+    finally:
+        pool.shutdown(cancel_futures=True)
+
+
 # ---------------------------------------------------------------------------------- cameras
 def _check_camera_model(path: Path, meta: dict[str, Any]) -> None:
     model = meta.get("camera_model")
@@ -241,14 +256,23 @@ def _exif_note(image: Path, size: tuple[int, int], camera: tuple[int, int]) -> s
     )
 
 
-def _check_frame_image(
-    root: Path, frame: dict[str, Any], where: str, camera: tuple[int, int, str], factor: int, decode: bool
-) -> tuple[int, int]:
-    """The size of the image nerfstudio reads for ``frame``, which must be the ``camera``'s
-    (``w``, ``h``, where they are given) at ``factor``."""
+def _frame_image(root: Path, frame: dict[str, Any], factor: int) -> Path:
+    """The image nerfstudio reads for ``frame`` at downscale ``factor``."""
     file_path = str(frame["file_path"])
-    image = root / file_path if factor == 1 else root / f"images_{factor}" / Path(file_path).name
-    size = _check_image(image, where, decode)
+    return root / file_path if factor == 1 else root / f"images_{factor}" / Path(file_path).name
+
+
+def _check_frame_image(
+    root: Path,
+    frame: dict[str, Any],
+    where: str,
+    camera: tuple[int, int, str],
+    factor: int,
+    image: Path,
+    size: tuple[int, int],
+) -> tuple[int, int]:
+    """``size``, that of ``frame``'s ``image``, which must be the ``camera``'s (``w``, ``h``, where they
+    are given) at ``factor``; the frame's mask must exist."""
     w, h, given = camera
     expected = (_scaled(w, factor), _scaled(h, factor))
     if size != expected:
@@ -320,6 +344,7 @@ def check_dataset(
     sizes: set[tuple[int, int]] = set()
     names: set[str] = set()
     factor = downscale_factor
+    cameras: list[tuple[str, tuple[int, int, str]]] = []  # each frame's where and camera
     for i, frame in enumerate(frames):
         if not isinstance(frame, dict):
             raise StealthNSError(f"{path}: frame {i} is not a JSON object")
@@ -333,8 +358,12 @@ def check_dataset(
         camera = (int(values["w"]), int(values["h"]), path.name if "w" in meta else "the frame")
         if i == 0:
             factor = _downscale_factor(root, file_path, where, downscale_factor)
-        sizes.add(_check_frame_image(root, frame, where, camera, int(factor or 1), decode))
+        cameras.append((where, camera))
         names.add(str(Path(file_path)))
+    images = [_frame_image(root, frame, int(factor or 1)) for frame in frames]
+    found = _image_sizes([(image, where) for image, (where, _) in zip(images, cameras, strict=True)], decode)
+    for frame, (where, camera), image, size in zip(frames, cameras, images, found, strict=True):
+        sizes.add(_check_frame_image(root, frame, where, camera, int(factor or 1), image, size))
     splits = _check_splits(path, meta, names)
     positions = [[row[3] for row in frame["transform_matrix"][:3]] for frame in frames]
     centre, spread = camera_spread(np.array(positions, dtype=np.float64), str(path))
@@ -368,10 +397,8 @@ def blender_image(file_path: str) -> str:
     return file_path.replace("./", "") + ".png"
 
 
-def _check_blender_image(
-    folder: Path, file_path: str, where: str, decode: bool, origins: Origins
-) -> tuple[Path, tuple[int, int]]:
-    """The image of a frame and its size (:func:`_check_image`)."""
+def _blender_frame_image(folder: Path, file_path: str, where: str, origins: Origins) -> Path:
+    """The image of a frame, which must be inside the folder and named as blender-data names it."""
     name = blender_image(file_path)
     check_reference(folder, name, where, "file_path", origins)
     image = folder / name
@@ -380,7 +407,7 @@ def _check_blender_image(
             f"{where}: image {image} does not exist: blender-data reads file_path + '.png', so "
             f"file_path names {folder / file_path} only without its extension"
         )
-    return image, _check_image(image, where, decode)
+    return image
 
 
 def _check_blender_split(
@@ -402,21 +429,23 @@ def _check_blender_split(
             f"{path}: camera_angle_x (the horizontal field of view) must be a number of radians in "
             f"(0, pi), {got}"
         )
-    first: tuple[Path, tuple[int, int]] | None = None
+    images: list[tuple[Path, str]] = []  # each frame's image and where
     for i, frame in enumerate(meta["frames"]):
         file_path = frame.get("file_path") if isinstance(frame, dict) else None
         if not isinstance(file_path, str) or not file_path.strip():
             raise StealthNSError(f"{path}: frame {i} has no file_path (or is not a JSON object)")
         where = f"{path}: frame {i} ({file_path})"
         _check_matrix(frame.get("transform_matrix"), where)
-        image, size = _check_blender_image(folder, file_path, where, decode, origins)
+        images.append((_blender_frame_image(folder, file_path, where, origins), where))
+        positions.append([row[3] for row in frame["transform_matrix"][:3]])
+    first: tuple[Path, tuple[int, int]] | None = None
+    for (image, where), size in zip(images, _image_sizes(images, decode), strict=True):
         if first is not None and size != first[1]:
             raise StealthNSError(
                 f"{where}: image {image} is {size[0]}x{size[1]} but the first frame's ({first[0].name}) is "
                 f"{first[1][0]}x{first[1][1]}: blender-data gives every camera of {path.name} that size"
             )
         first = first or (image, size)
-        positions.append([row[3] for row in frame["transform_matrix"][:3]])
     assert first is not None  # _load refuses an empty frame list
     return len(meta["frames"]), first[1]
 
@@ -509,6 +538,7 @@ def check_colmap(folder: Path, model: str, images: str = "images", decode: bool 
     rec = _read_colmap(model_dir)
     sizes: set[tuple[int, int]] = set()
     centres = []
+    checks: list[tuple[Path, str, tuple[int, int]]] = []  # each image's file, where and camera size
     for image_id in sorted(rec.images):
         image = rec.images[image_id]
         where = f"{model_dir}: image {image_id} ({image.name})"
@@ -522,7 +552,9 @@ def check_colmap(folder: Path, model: str, images: str = "images", decode: bool 
         if not np.isfinite(centre).all():
             raise StealthNSError(f"{where}: its pose is not finite")
         centres.append(centre)
-        size = _check_image(file, where, decode)
+        checks.append((file, where, camera))
+    found = _image_sizes([(file, where) for file, where, _ in checks], decode)
+    for (file, where, camera), size in zip(checks, found, strict=True):
         if size != camera:
             raise StealthNSError(
                 f"{where}: image {file} is {size[0]}x{size[1]} but its camera is {camera[0]}x{camera[1]}"

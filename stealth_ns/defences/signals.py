@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from stealth_ns.attack.injection import median_scene_depth, surface_depths
+from stealth_ns.attack.injection import surface_depths
 from stealth_ns.defences import scores
 from stealth_ns.method.model import POISON_TAG, StealthSplatModel
 from stealth_ns.raster.cpp_backend import load_extension
@@ -61,6 +61,9 @@ def view_weight_matrix(model: StealthSplatModel, cameras: object, desc: str = "v
     return view_weights_and_depths(model, cameras, desc, with_depths=False)[0]
 
 
+#: Views whose weights :func:`view_weights_and_depths` gathers before writing them into its matrix.
+WEIGHT_BLOCK_VIEWS = 16
+
 #: The quantile of a view's surface depths that stands for the nearest things it shows: low enough
 #: for the near walls and floor of a walk-through to count, above the few pixels of a stray floater.
 NEAR_DEPTH_QUANTILE = 0.05
@@ -69,11 +72,22 @@ NEAR_DEPTH_QUANTILE = 0.05
 def near_surface_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
     """The :data:`NEAR_DEPTH_QUANTILE` quantile of the rendered z-depth (scene units) of the pixels that
     show a surface (:func:`~stealth_ns.attack.injection.surface_depths`), ``fallback`` when none does."""
-    surface = surface_depths(depth, alpha).reshape(-1)
-    if not surface.numel():
-        return fallback
-    k = max(1, math.ceil(NEAR_DEPTH_QUANTILE * surface.numel()))
-    return float(surface.kthvalue(k).values)
+    near = surface_median_and_near(depth, alpha)[1]
+    return fallback if math.isnan(near) else near
+
+
+def surface_median_and_near(depth: Tensor, alpha: Tensor) -> tuple[float, float]:
+    """``(median, near)`` of the surface depths of one view (``[H, W]`` each), from one selection of the
+    surface pixels and one partition: the lower median as
+    :func:`~stealth_ns.attack.injection.median_scene_depth` takes it and the :data:`NEAR_DEPTH_QUANTILE`
+    order statistic of :func:`near_surface_depth` (the same values); NaN, NaN when no pixel shows one."""
+    surface = surface_depths(depth, alpha).reshape(-1).cpu().numpy()
+    n = surface.size
+    if n == 0:
+        return math.nan, math.nan
+    median, near = (n + 1) // 2 - 1, max(1, math.ceil(NEAR_DEPTH_QUANTILE * n)) - 1
+    ordered = np.partition(surface, sorted({median, near}))
+    return float(ordered[median]), float(ordered[near])
 
 
 def near_depth_share(medians: np.ndarray, nears: np.ndarray) -> float:
@@ -98,15 +112,20 @@ def view_weights_and_depths(
     out = np.zeros((model.num_points, n_views), dtype=np.float32)
     depths = np.full(n_views, np.nan)
     nears = np.full(n_views, np.nan)
+    # a block of views' weights is written into ``out`` at once: one column at a time would touch
+    # every row's cache line once per view
+    block = np.empty((min(WEIGHT_BLOCK_VIEWS, n_views), model.num_points), dtype=np.float32)
     with _progress(n_views, desc) as bar:
         for v in range(n_views):
             if with_depths:
                 weights, depth, alpha = model.blend_weights(cameras[v : v + 1], with_depth=True)
-                depths[v] = median_scene_depth(depth, alpha, np.nan)
-                nears[v] = near_surface_depth(depth, alpha, np.nan)
+                depths[v], nears[v] = surface_median_and_near(depth, alpha)
             else:
                 weights = model.blend_weights(cameras[v : v + 1])
-            out[:, v] = weights.cpu().numpy()
+            block[v % len(block)] = weights.cpu().numpy()
+            if v % len(block) == len(block) - 1 or v == n_views - 1:
+                first = v - v % len(block)
+                out[:, first : v + 1] = block[: v + 1 - first].T
             bar.update(1)
     return out, depths, nears
 

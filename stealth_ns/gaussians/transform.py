@@ -97,14 +97,15 @@ def transform_cloud(cloud: GaussianCloud, matrix: np.ndarray) -> GaussianCloud:
     quats = quaternion_product(rotation_quaternion(rotation), cloud.quats.astype(np.float64)).astype(f32)
     rest = cloud.sh_rest
     if rest.shape[1] and not np.allclose(rotation, np.eye(3), rtol=0, atol=1e-12):
-        m = sh_rotation(rotation, cloud.sh_degree)[1:, 1:]  # degree 0 is invariant and kept apart
+        m_t = np.ascontiguousarray(sh_rotation(rotation, cloud.sh_degree)[1:, 1:].T)  # degree 0 apart
         out = np.empty_like(rest, dtype=f32)
-        # [K, K] @ [K, rows * 3] a block of rows at a time: one matrix product each, small float64 copies
+        # [rows * 3, K] @ [K, K] a block of rows at a time: one matrix product each, small float64
+        # copies transposed within each row (cache friendly: each row's coefficients stay together)
         for lo in range(0, len(rest), _SH_ROWS_PER_BLOCK):
             block = rest[lo : lo + _SH_ROWS_PER_BLOCK]
             n, k, c = block.shape
-            flat = np.ascontiguousarray(block.transpose(1, 0, 2), dtype=np.float64).reshape(k, n * c)
-            out[lo : lo + n] = (m @ flat).reshape(k, n, c).transpose(1, 0, 2)
+            flat = np.ascontiguousarray(block.transpose(0, 2, 1), dtype=np.float64).reshape(n * c, k)
+            out[lo : lo + n] = (flat @ m_t).reshape(n, c, k).transpose(0, 2, 1)
         rest = out
     return GaussianCloud(
         means=means,

@@ -106,6 +106,17 @@ def test_broken_dataset_is_one_line_naming_file_and_frame(scene, case, capsys):
     _refused_in_one_line(scene, MUTATIONS[case], capsys)
 
 
+def test_of_several_broken_images_the_first_frame_is_named(scene):
+    """The images are decoded on every core at once; the error is still the first frame's in the
+    transforms' order, whichever decode finishes first."""
+    frames = json.loads((scene / "transforms.json").read_text())["frames"]
+    for frame in frames[3:]:
+        _truncate(scene / frame["file_path"])
+    (scene / frames[-1]["file_path"]).write_text("hello")  # fails at once, before the truncated ones
+    with pytest.raises(StealthNSError, match=rf"frame 3 \({frames[3]['file_path']}\).*cannot be read"):
+        check_dataset(scene)
+
+
 @pytest.mark.parametrize("case", ["missing transforms", "truncated image", "nan pose"])
 def test_training_start_up_refuses_a_broken_dataset(scene, case):
     index = _frame_index(scene, IMAGE)

@@ -15,7 +15,12 @@ from model_helpers import build_model, camera, pinhole_cameras
 from stealth_ns.defence_eval.stealth import stealth_summary
 from stealth_ns.defences.config import DEFENCES, DefendConfig
 from stealth_ns.defences.pruned_run import pruned_state
-from stealth_ns.defences.signals import gradient_energy_matrix, view_weight_matrix, view_weights_and_depths
+from stealth_ns.defences.signals import (
+    WEIGHT_BLOCK_VIEWS,
+    gradient_energy_matrix,
+    view_weight_matrix,
+    view_weights_and_depths,
+)
 from stealth_ns.gaussians.rows import select_rows
 from stealth_ns.images.input_filter import filter_image
 from stealth_ns.method.camera_geometry import camera_geometry
@@ -61,6 +66,22 @@ def test_view_weights_bring_the_scene_depths_of_camera_proximity():
     assert depths[:2].tolist() == rendered[:2].tolist()
     assert rendered[2] == np.median(depths[:2])
     assert np.isnan(nears[2]) and (0 < nears[:2]).all() and (nears[:2] <= depths[:2]).all()
+
+
+def test_view_weight_columns_are_each_views_weights_across_blocks():
+    """The matrix is written a block of views at a time: with more views than a block (and a last,
+    partial block), every column is that view's own blend weights."""
+    model, _ = build_model(n_points=120)
+    model.eval()
+    n_views = WEIGHT_BLOCK_VIEWS + 3
+    c2w = torch.eye(4)[:3].repeat(n_views, 1, 1)
+    c2w[:, 0, 3] = torch.linspace(-0.5, 0.5, n_views)
+    c2w[:, 2, 3] = 3.0
+    cams = pinhole_cameras(c2w)
+    weights = view_weight_matrix(model, cams)
+    for v in (0, WEIGHT_BLOCK_VIEWS - 1, WEIGHT_BLOCK_VIEWS, n_views - 1):
+        assert np.array_equal(weights[:, v], model.blend_weights(cams[v : v + 1]).numpy())
+    assert len({weights[:, v].tobytes() for v in range(n_views)}) == n_views
 
 
 def test_kept_renders_as_if_the_rows_were_removed():

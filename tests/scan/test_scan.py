@@ -14,7 +14,7 @@ from numpy.lib import recfunctions
 
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.gaussians.ply import GaussianCloud, read_gaussian_ply, write_gaussian_ply
-from stealth_ns.gaussians.transform import transform_cloud
+from stealth_ns.gaussians.transform import _SH_ROWS_PER_BLOCK, transform_cloud
 from stealth_ns.raster.projection import quat_to_rotmat, spherical_harmonics, viewmat_from_c2w
 
 
@@ -110,6 +110,21 @@ def test_a_frame_change_keeps_every_gaussian_as_seen():
         return spherical_harmonics(3, dirs, coeffs)
 
     assert torch.allclose(colours(cloud, d), colours(moved, d @ torch.from_numpy(r.T)), atol=1e-5)
+
+
+def test_the_colour_rotation_is_the_same_in_every_block_of_rows():
+    """The SH coefficients are rotated a block of rows at a time: rows in the first, a middle and the
+    last, partial block come out as each row rotated alone."""
+    from scipy.spatial.transform import Rotation
+
+    cloud = make_cloud(n=2 * _SH_ROWS_PER_BLOCK + 3, degree=3, seed=4)
+    m = np.eye(4)
+    m[:3, :3] = Rotation.random(random_state=5).as_matrix()
+    moved = transform_cloud(cloud, m)
+    for row in (0, _SH_ROWS_PER_BLOCK - 1, _SH_ROWS_PER_BLOCK, len(cloud) - 1):
+        alone = transform_cloud(cloud.subset(np.array([row])), m)
+        assert np.array_equal(moved.sh_rest[row], alone.sh_rest[0]), row
+        assert not np.array_equal(moved.sh_rest[row], cloud.sh_rest[row])
 
 
 def test_a_dataset_frame_point_projects_where_the_dataset_says(tiny_orbit_scene):

@@ -1587,6 +1587,9 @@ std::vector<int32_t> depth_order(
     return order;
 }
 
+// How many Gaussians ahead the binning fetches a rectangle (a cache miss each, in depth order).
+constexpr int64_t kBinPrefetch = 16;
+
 // The tile lists (offsets [C, tiles_y, tiles_x], flatten_ids) from the depth order: a parallel
 // counting sort.  Thread t takes the t-th chunk of each camera's depth order, counts its pairs per
 // tile, and after a prefix sum writes them from its own cursor, which lies after the cursors of
@@ -1613,6 +1616,16 @@ std::vector<at::Tensor> bin_by_tile(
                 const int32_t *__restrict__ o = order + c * N;
                 const int64_t s0 = n_live[c] * t / T, s1 = n_live[c] * (t + 1) / T;
                 for (int64_t s = s0; s < s1; ++s) {
+                    // depth order visits the rectangles at random: fetch ahead, the bands once the
+                    // rectangle has arrived
+                    if (s + kBinPrefetch < s1) __builtin_prefetch(rects + c * N + o[s + kBinPrefetch]);
+                    if (s + kBinPrefetch / 2 < s1) {
+                        const int64_t band = rects[c * N + o[s + kBinPrefetch / 2]].band;
+                        if (band >= 0) {
+                            __builtin_prefetch(bx0s + band);
+                            __builtin_prefetch(bx1s + band);
+                        }
+                    }
                     const int64_t gi = c * N + o[s];
                     const TileRect r = rects[gi];
                     for (int32_t y = r.y0; y < r.y1; ++y) {
