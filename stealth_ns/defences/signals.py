@@ -69,18 +69,12 @@ WEIGHT_BLOCK_VIEWS = 16
 NEAR_DEPTH_QUANTILE = 0.05
 
 
-def near_surface_depth(depth: Tensor, alpha: Tensor, fallback: float) -> float:
-    """The :data:`NEAR_DEPTH_QUANTILE` quantile of the rendered z-depth (scene units) of the pixels that
-    show a surface (:func:`~stealth_ns.attack.injection.surface_depths`), ``fallback`` when none does."""
-    near = surface_median_and_near(depth, alpha)[1]
-    return fallback if math.isnan(near) else near
-
-
 def surface_median_and_near(depth: Tensor, alpha: Tensor) -> tuple[float, float]:
-    """``(median, near)`` of the surface depths of one view (``[H, W]`` each), from one selection of the
-    surface pixels and one partition: the lower median as
-    :func:`~stealth_ns.attack.injection.median_scene_depth` takes it and the :data:`NEAR_DEPTH_QUANTILE`
-    order statistic of :func:`near_surface_depth` (the same values); NaN, NaN when no pixel shows one."""
+    """``(median, near)`` rendered z-depths (scene units) of the pixels of one view (``[H, W]`` each) that
+    show a surface (:func:`~stealth_ns.attack.injection.surface_depths`), from one selection and one
+    partition: the lower median, as :func:`~stealth_ns.attack.injection.median_scene_depth` takes it,
+    and the near depth, the :data:`NEAR_DEPTH_QUANTILE` quantile (the k-th nearest, k rounded up);
+    NaN, NaN when no pixel shows one."""
     surface = surface_depths(depth, alpha).reshape(-1).cpu().numpy()
     n = surface.size
     if n == 0:
@@ -106,7 +100,7 @@ def view_weights_and_depths(
     """:func:`view_weight_matrix`'s ``[N, V]`` weights, ``[V]`` each view's median rendered z-depth
     of the pixels that show a surface (:func:`~stealth_ns.attack.injection.median_scene_depth`, NaN
     where none does; all NaN without ``with_depths``) and ``[V]`` each view's near depth
-    (:func:`near_surface_depth`, NaN likewise), read off the same renders: camera-proximity's scene
+    (:func:`surface_median_and_near`, NaN likewise), read off the same renders: camera-proximity's scene
     depths (:func:`stealth_ns.method.camera_geometry.geometry_of`) without rendering again."""
     n_views = len(cameras)
     out = np.zeros((model.num_points, n_views), dtype=np.float32)

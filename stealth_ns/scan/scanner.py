@@ -32,6 +32,7 @@ from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.fit import check_fit
 from stealth_ns.scan.photos import PhotoUse, photo_signals_refused
 from stealth_ns.scan.verdict import (
+    EffectRule,
     Region,
     RenderedView,
     effect_mask,
@@ -104,12 +105,10 @@ def _render(model: Any, camera: Any, keep: np.ndarray | None) -> RenderedView:
     )
 
 
-def _group_effect(
-    model: Any, camera: Any, members: np.ndarray, cfg: ScanConfig, near_share: float
-) -> tuple[Region, dict]:
+def _group_effect(model: Any, camera: Any, members: np.ndarray, rule: EffectRule) -> tuple[Region, dict]:
     full, rest, group = (_render(model, camera, keep) for keep in (None, ~members, members))
     depth = median_scene_depth(torch.from_numpy(full.depth), torch.from_numpy(full.alpha), np.inf)
-    region = largest_region(effect_mask(full, rest, group, depth, cfg.effect_rule(near_share)))
+    region = largest_region(effect_mask(full, rest, group, depth, rule))
     return region, {"full": full.rgb, "without": rest.rgb, "flagged": group.rgb, "effect": region.mask}
 
 
@@ -156,12 +155,12 @@ def scan_model(
     weights = inputs.view_weights()  # the grouping needs them, whatever the signals
     seconds["view weights"] = round(time.perf_counter() - t0, 2)
     near_share = inputs.near_share()
-    flags, effect = cfg.defend_config(near_share).proximity_threshold, cfg.effect_rule(near_share).near_ratio
-    lines = f"{flags:.2f} (flags) and {effect:.2f} (effect)"
+    defend, effect = cfg.defend_config(near_share), cfg.effect_rule(near_share)
+    lines = f"{defend.proximity_threshold:.2f} (flags) and {effect.near_ratio:.2f} (effect)"
     echo(f"  near depth: {near_share:.2f} of each view's median depth; near lines at {lines} of the median")
     scored = {}
     for name in cfg.signals:
-        scored[name] = score(name, inputs, cfg.defend_config(near_share))
+        scored[name] = score(name, inputs, defend)
         seconds[name] = scored[name].seconds
         count = int(scored[name].pruned.sum())
         echo(f"  {name}: {count} of {model.num_points} Gaussians flagged ({scored[name].rule})")
@@ -169,7 +168,7 @@ def scan_model(
     t0 = time.perf_counter()
     groups = []
     for view, members in groups_by_view(flagged, weights, cfg.min_group).items():
-        region, renders = _group_effect(model, cameras[view : view + 1], members, cfg, near_share)
+        region, renders = _group_effect(model, cameras[view : view + 1], members, effect)
         targeted = is_targeted(region, int(members.sum()), cfg.region_threshold, cfg.max_pixels_per_gaussian)
         groups.append(Group(view, names[view], members, region, targeted, renders if targeted else {}))
     groups.sort(key=lambda g: (-g.region.share, g.view))

@@ -11,7 +11,6 @@ from stealth_ns.attack.injection import median_scene_depth
 from stealth_ns.defences.signals import (
     NEAR_DEPTH_QUANTILE,
     near_depth_share,
-    near_surface_depth,
     surface_median_and_near,
 )
 
@@ -19,13 +18,13 @@ from stealth_ns.defences.signals import (
 def test_a_views_near_depth_is_a_low_quantile_of_what_shows_a_surface():
     depth = torch.arange(1, 101, dtype=torch.float32).reshape(10, 10)
     alpha = torch.ones(10, 10)
-    assert near_surface_depth(depth, alpha, np.nan) == math.ceil(
+    assert surface_median_and_near(depth, alpha)[1] == math.ceil(
         100 * NEAR_DEPTH_QUANTILE
     )  # the k-th nearest, k rounded up
     alpha[0] = 0.0  # the nearest row shows no surface (sky, empty background)
-    assert near_surface_depth(depth, alpha, np.nan) == 10 + math.ceil(90 * NEAR_DEPTH_QUANTILE)
-    assert np.isnan(near_surface_depth(depth, torch.zeros(10, 10), np.nan))
-    assert near_surface_depth(torch.full((4, 4), float("nan")), torch.ones(4, 4), 7.0) == 7.0
+    assert surface_median_and_near(depth, alpha)[1] == 10 + math.ceil(90 * NEAR_DEPTH_QUANTILE)
+    assert np.isnan(surface_median_and_near(depth, torch.zeros(10, 10))[1])
+    assert np.isnan(surface_median_and_near(torch.full((4, 4), float("nan")), torch.ones(4, 4))[1])
 
 
 def test_one_view_filled_by_something_close_moves_the_scenes_share_little():
