@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import copy
+import random
 from pathlib import Path
 
+import numpy as np
+import torch
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.engine.optimizers import Optimizers
@@ -16,7 +19,15 @@ from stealth_ns.method.pipeline import StealthPipeline, StealthPipelineConfig
 from stealth_ns.method_configs.base import gaussian_optimizers
 
 
-def build_pipeline(scene: Path, attack: AttackConfig | None = None, **model_kw) -> StealthPipeline:
+def build_pipeline(
+    scene: Path, attack: AttackConfig | None = None, seed: int = 42, **model_kw
+) -> StealthPipeline:
+    """The pipeline ns-train would build, with its random state seeded as ns-train seeds it
+    (``--machine.seed``, 42 by default), so that a test's numbers do not depend on which tests ran
+    before it in the same worker."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
     model = {"num_downscales": 0, "warmup_length": 5, "refine_every": 5, "sh_degree": 1, **model_kw}
     config = StealthPipelineConfig(
         datamanager=StealthDataManagerConfig(
