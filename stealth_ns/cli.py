@@ -17,6 +17,7 @@ from stealth_ns.attack.config import AttackConfig
 from stealth_ns.bench.scan_runs import PlyFrame
 from stealth_ns.defences.config import DefendConfig
 from stealth_ns.difficulty.rank import RankViews
+from stealth_ns.foundation import deferred_compile
 from stealth_ns.foundation.errors import StealthNSError, environment_error
 from stealth_ns.foundation.output_folder import check_file_writable
 from stealth_ns.poisoned_datasets.config import IPAConfig, data_only_attack_defaults
@@ -575,6 +576,7 @@ def _command_prefixes() -> set[str]:
 
 
 def entrypoint() -> None:
+    deferred_compile.install()
     try:
         main()
     except (StealthNSError, OSError) as err:  # OSError: a write the environment refused (full disk)

@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 import torch
 from scipy.stats import rankdata
-from torchmetrics.functional.classification import binary_auroc, binary_average_precision
 
 from stealth_ns.defences.scores import nan_as_suspicious, prune_mask_top_count
 
@@ -69,6 +68,9 @@ def detection_metrics(scores: np.ndarray, is_poison: np.ndarray) -> dict[str, An
     if n_poison == 0 or n_clean == 0:
         out["reason"] = f"AUROC and AP need both classes; got {n_poison} poison and {n_clean} clean Gaussians"
         return out
+    # imported here: torchmetrics imports torchvision and torch's dynamo (~4 s of a command's start)
+    from torchmetrics.functional.classification import binary_auroc, binary_average_precision
+
     preds = torch.from_numpy(rank_scores(s))
     target = torch.from_numpy(y.astype(np.int64))
     out["auroc"] = float(binary_auroc(preds, target))
