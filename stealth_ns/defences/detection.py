@@ -68,7 +68,8 @@ def detection_metrics(scores: np.ndarray, is_poison: np.ndarray) -> dict[str, An
     if n_poison == 0 or n_clean == 0:
         out["reason"] = f"AUROC and AP need both classes; got {n_poison} poison and {n_clean} clean Gaussians"
         return out
-    # imported here: torchmetrics imports torchvision and torch's dynamo (~4 s of a command's start)
+    # imported here, not at the top: torchmetrics imports torchvision and torch's dynamo, seconds of
+    # the start of every command that imports this module, and most never compute these metrics
     from torchmetrics.functional.classification import binary_auroc, binary_average_precision
 
     preds = torch.from_numpy(rank_scores(s))

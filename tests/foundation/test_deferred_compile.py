@@ -47,7 +47,7 @@ def test_a_direct_call_goes_to_nerfstudios_function_unchanged():
     assert log == [((module,), {"mode": "x"})]
 
 
-def test_importing_splatfacto_no_longer_imports_inductor():
+def test_splatfacto_imported_after_install_leaves_inductor_unimported():
     code = (
         "import sys\n"
         "from stealth_ns.foundation import deferred_compile\n"
