@@ -1,7 +1,7 @@
 """`stealth-ns` console script: tyro subcommands.
 
-Every subcommand raises :class:`StealthNSError` for bad input; ``entrypoint`` prints it (and a write
-the environment refused) as one line (``stealth-ns: error: ...``), exit status 2, never a traceback.
+Every subcommand raises :class:`StealthNSError` for bad input; ``run`` prints it (and a write the
+environment refused) as one line (``stealth-ns: error: ...``), exit status 2, never a traceback.
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ class BenchRaster:
     json: Path | None = None
     """Also write the figures to this JSON file."""
     quick: bool = False
-    """Only the smallest case, fewer repeats (a smoke run, not for reporting)."""
+    """Only the smallest case, 3 timed runs (the reference: 1): a smoke run, not for reporting."""
     threads: int | None = None
     """Torch/OpenMP threads (default: torch's default, the number of cores)."""
 
@@ -93,7 +93,7 @@ class BenchRaster:
 
         if self.json is not None:
             check_file_writable(self.json, "--json")
-        kwargs = {"cases": DEFAULT_CASES[:1], "repeats": 3} if self.quick else {}
+        kwargs = {"cases": DEFAULT_CASES[:1], "repeats": 3, "reference_repeats": 1} if self.quick else {}
         run_raster_benchmark(json_path=self.json, threads=self.threads, **kwargs)
 
 
@@ -563,8 +563,7 @@ def main(argv: list[str] | None = None) -> None:
             if unknown
             else f"no command given; commands: {', '.join(COMMANDS)}"
         )
-    cmd = tyro.cli(COMMANDS[name], args=argv, prog=f"stealth-ns {name}")
-    cmd.main()
+    tyro.cli(COMMANDS[name], args=argv, prog=f"stealth-ns {name}").main()
 
 
 def _command_prefixes() -> set[str]:
@@ -575,19 +574,26 @@ def _command_prefixes() -> set[str]:
     return prefixes
 
 
-def entrypoint() -> None:
+def run(argv: list[str] | None = None) -> int:
+    """The exit status of ``stealth-ns ARGV``: 0; 2 after one line (bad input, a refused write); 130."""
     deferred_compile.install()
     try:
-        main()
+        main(argv)
     except (StealthNSError, OSError) as err:  # OSError: a write the environment refused (full disk)
         line = err if isinstance(err, StealthNSError) else environment_error(err)
         if line is None:
             raise
         print(f"stealth-ns: error: {line}", file=sys.stderr)
-        sys.exit(2)
+        return 2
     except KeyboardInterrupt:
         print("stealth-ns: interrupted", file=sys.stderr)
-        sys.exit(130)
+        return 130
+    return 0
+
+
+def entrypoint() -> None:
+    if status := run():
+        sys.exit(status)
 
 
 if __name__ == "__main__":

@@ -3,10 +3,13 @@ under pytest-xdist, once for all of the session's workers)."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import shutil
 import subprocess
 import sys
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
@@ -16,17 +19,54 @@ from filelock import FileLock
 BIN = Path(sys.executable).parent
 
 
-def run_cli(*args: str, timeout: float = 600, check: bool = True) -> subprocess.CompletedProcess:
-    """Run one of the venv's console scripts (``stealth-ns``, ``ns-train``, ...) and capture its output."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.run(
-        [str(BIN / args[0]), *args[1:]], capture_output=True, text=True, timeout=timeout, env=env
-    )
+#: ``stealth-ns`` commands that :func:`run_cli` runs in the test's own process, where torch, nerfstudio
+#: and stealth-ns are imported already (a fresh console script spends ~8 s importing them). The console
+#: script itself runs as a user runs it in tests/test_cli.py and in one test of each of these commands
+#: (``in_process=False``); the benchmarks (threads, allocator settings, Ray) always run in their own.
+IN_PROCESS_COMMANDS = ("report", "defend", "scan", "poison-dataset")
+
+
+def run_cli(
+    *args: str, timeout: float = 600, check: bool = True, in_process: bool | None = None
+) -> subprocess.CompletedProcess:
+    """Run one of the venv's console scripts (``stealth-ns``, ``ns-train``, ...) and capture its output.
+    ``in_process`` (default: for :data:`IN_PROCESS_COMMANDS`) runs ``stealth-ns`` here instead, with its
+    exit status, stdout and stderr as the console script gives them (``timeout`` does not apply)."""
+    if in_process is None:
+        in_process = args[0] == "stealth-ns" and len(args) > 1 and args[1] in IN_PROCESS_COMMANDS
+    if in_process:
+        assert args[0] == "stealth-ns", f"only stealth-ns runs in the test's process, not {args[0]}"
+        proc = _run_here(list(args[1:]))
+    else:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        proc = subprocess.run(
+            [str(BIN / args[0]), *args[1:]], capture_output=True, text=True, timeout=timeout, env=env
+        )
     if check and proc.returncode != 0:
         raise AssertionError(
             f"{' '.join(args)} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
         )
     return proc
+
+
+def _run_here(argv: list[str]) -> subprocess.CompletedProcess:
+    """``stealth-ns ARGV`` as :func:`stealth_ns.cli.entrypoint` runs it, in this process: an exception
+    the console script would show as a traceback goes to the captured stderr, exit status 1."""
+    from stealth_ns import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            status = cli.run(argv)
+        except SystemExit as exit_:  # tyro's --help and option errors
+            code = exit_.code
+            if code is not None and not isinstance(code, int):
+                print(code, file=sys.stderr)
+            status = code if isinstance(code, int) else int(code is not None)
+        except Exception:
+            traceback.print_exc()
+            status = 1
+    return subprocess.CompletedProcess(["stealth-ns", *argv], status, out.getvalue(), err.getvalue())
 
 
 def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
@@ -120,7 +160,7 @@ def tiny_report(tiny_run_pair, tmp_path_factory) -> tuple[Path, str]:
             (out / name).parent.mkdir(parents=True, exist_ok=True)
             (out / name).write_text("x")
         proc = run_cli("stealth-ns", "report", "--poisoned", str(poisoned), "--clean", str(clean),
-                       "--output", str(out))  # fmt: skip
+                       "--output", str(out), in_process=False)  # fmt: skip
         (folder / "stdout.txt").write_text(proc.stdout)
 
     folder = built_once(tmp_path_factory, "report", build)

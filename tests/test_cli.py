@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import platform
+import re
 import subprocess
 import sys
 
@@ -87,6 +88,25 @@ def test_unknown_command_is_one_line_error():
     proc = run_cli("stealth-ns", "frobnicate", check=False)
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "unknown command 'frobnicate'" in proc.stderr
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["scan", "--model", "{tmp}", "--output", "{tmp}/scan"], ["defend", "--help"], ["report", "--nope"]],
+)
+def test_commands_run_in_the_tests_process_as_the_console_script_runs_them(tmp_path, args):
+    """conftest's in-process runner (most tests of report, defend, scan and poison-dataset use it) gives
+    the console script's exit status, stdout and stderr."""
+    (tmp_path / "config.yml").write_text("x: 1\n")
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    here, script = (run_cli("stealth-ns", *argv, check=False, in_process=flag) for flag in (True, False))
+    assert here.returncode == script.returncode and (here.returncode != 0 or args[-1] == "--help")
+
+    def words(text: str) -> list[str]:  # rich draws its boxes in ASCII into a StringIO
+        return re.findall(r"-*\w[\w.:/-]*", text)
+
+    assert words(here.stdout) == words(script.stdout) and words(here.stdout + here.stderr)
+    assert words(here.stderr) == words(script.stderr)
 
 
 def test_bench_raster_quick_writes_json(tmp_path):

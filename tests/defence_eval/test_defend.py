@@ -179,7 +179,7 @@ def test_defend_end_to_end_on_tiny_runs(tiny_run_pair, tmp_path):
     out = tmp_path / "defend"
     proc = run_cli(
         "stealth-ns", "defend", "--run", str(poisoned), "--clean", str(clean), "--output", str(out),
-        "--finetune-epochs", "1",
+        "--finetune-epochs", "1", in_process=False,
     )  # fmt: skip
     assert "Traceback" not in proc.stderr
     result = json.loads((out / "defend.json").read_text())

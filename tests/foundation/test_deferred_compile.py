@@ -68,6 +68,6 @@ def test_the_console_script_installs_it_before_the_command_runs(monkeypatch):
 
     calls: list[str] = []
     monkeypatch.setattr(deferred_compile, "install", lambda: calls.append("install"))
-    monkeypatch.setattr(cli, "main", lambda: calls.append("main"))
+    monkeypatch.setattr(cli, "main", lambda argv=None: calls.append("main"))
     cli.entrypoint()
     assert calls == ["install", "main"]

@@ -159,7 +159,7 @@ def test_the_cli_says_a_refused_write_in_one_line(monkeypatch, capsys):
     any other OSError is a bug and shows as one."""
     import stealth_ns.cli as cli
 
-    def full_disk() -> None:
+    def full_disk(argv: list[str] | None = None) -> None:
         raise OSError(errno.ENOSPC, NO_SPACE, "/out/figure.png")
 
     monkeypatch.setattr(cli, "main", full_disk)
@@ -168,7 +168,7 @@ def test_the_cli_says_a_refused_write_in_one_line(monkeypatch, capsys):
     assert info.value.code == 2
     assert capsys.readouterr().err == f"stealth-ns: error: cannot write /out/figure.png: {NO_SPACE}\n"
 
-    def missing() -> None:
+    def missing(argv: list[str] | None = None) -> None:
         raise FileNotFoundError(errno.ENOENT, "No such file or directory", "/x")
 
     monkeypatch.setattr(cli, "main", missing)

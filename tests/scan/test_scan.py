@@ -252,7 +252,8 @@ def test_report_scores_a_ply_victim_of_a_poisoned_copy_as_its_run(tiny_run_pair,
     from stealth_ns.runs.loaded import load_run
 
     copy = tmp_path / "copy"
-    run_cli("stealth-ns", "poison-dataset", "--data", str(tiny_orbit_scene), "--output", str(copy))
+    args = ["poison-dataset", "--data", str(tiny_orbit_scene), "--output", str(copy)]
+    run_cli("stealth-ns", *args, in_process=False)  # the console script of poison-dataset, as a user runs it
     victim = train_tiny(copy, tmp_path / "runs", "victim", "--pipeline.attack.enabled", "False")
     run = load_run(victim)
     to_ns = frame_transforms(

@@ -110,7 +110,8 @@ def linked_scan(tiny_run_pair, tmp_path_factory) -> tuple[Path, Path, dict]:
     base = tmp_path_factory.mktemp("linked")
     (base / "real").mkdir()
     (base / "link").symlink_to(base / "real")
-    proc = run_cli("stealth-ns", "scan", "--model", str(tiny_run_pair[1]), "--output", str(base / "link"))
+    args = ["scan", "--model", str(tiny_run_pair[1]), "--output", str(base / "link")]
+    proc = run_cli("stealth-ns", *args, in_process=False)  # the console script of scan, as a user runs it
     return base / "link", base / "real", proc
 
 
