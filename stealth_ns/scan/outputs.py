@@ -103,7 +103,8 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
         "verdict": result.verdict,
         "targeted_views": [group_entry(g) for g in result.targeted],
         "rule": (
-            f"suspicious when the flagged Gaussians one view sees most cover, connected, at least "
+            f"suspicious when the flagged Gaussians one view sees most (or at least {cfg.group_share:.0%} as "
+            f"much as the view that sees them most) cover, connected, at least "
             f"{cfg.region_threshold:.1%} of that view, floating in front of what the rest of the model shows "
             f"there (below {cfg.depth_ratio:g} of its depth and {cfg.near_ratio:g} of the view's near "
             f"depth, {result.near_share:.2f} of its median scene depth) and changing its colour by more than "

@@ -5,8 +5,8 @@
 The model (a PLY from any trainer, or a nerfstudio run: :mod:`stealth_ns.runs.imported`) is put on
 the training cameras of its dataset. Each Gaussian is scored by the post-hoc defences that need no
 ground truth (:mod:`stealth_ns.defences.posthoc`: view-support, camera-proximity and, when asked for,
-grad-concentration) and flagged by their rules; the flagged Gaussians are grouped by the view that
-sees them most, and each group's effect on its view is rendered (:mod:`stealth_ns.scan.verdict`).
+grad-concentration) and flagged by their rules; the flagged Gaussians are grouped by the views that
+see them most, and each group's effect on its view is rendered (:mod:`stealth_ns.scan.verdict`).
 A group whose connected effect covers ``region_threshold`` of its view, with no more than
 ``max_pixels_per_gaussian`` pixels of it per Gaussian of the group, makes the model *suspicious*
 and names that view as targeted; the cleaned model is the input without those groups.
@@ -167,7 +167,7 @@ def scan_model(
     flagged = np.logical_or.reduce([s.pruned for s in scored.values()])
     t0 = time.perf_counter()
     groups = []
-    for view, members in groups_by_view(flagged, weights, cfg.min_group).items():
+    for view, members in groups_by_view(flagged, weights, cfg.min_group, cfg.group_share).items():
         region, renders = _group_effect(model, cameras[view : view + 1], members, effect)
         targeted = is_targeted(region, int(members.sum()), cfg.region_threshold, cfg.max_pixels_per_gaussian)
         groups.append(Group(view, names[view], members, region, targeted, renders if targeted else {}))

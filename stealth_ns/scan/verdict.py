@@ -7,7 +7,9 @@ clean single-view Gaussians do not: it *covers*, in its view, a region of the sc
 the model shows (other views constrain what lies behind it) and paints something else there. So for
 each training view v:
 
-* the group ``G_v``: flagged Gaussians whose blending weight is largest in v (:func:`groups_by_view`);
+* the group ``G_v``: flagged Gaussians whose blending weight is largest in v, or there at least a
+  share of their largest (:func:`groups_by_view`; the scan's ``group_share``: poison that several views
+  see nearly alike belongs to each of them);
 * its effect (:func:`effect_mask`): the pixels where ``G_v`` alone is opaque, the model without
   ``G_v`` is opaque too (something lies behind), ``G_v`` floats near the camera well in front of it,
   and removing ``G_v`` changes the colour;
@@ -24,20 +26,28 @@ import numpy as np
 from scipy import ndimage
 
 
-def groups_by_view(flagged: np.ndarray, weights: np.ndarray, min_size: int = 1) -> dict[int, np.ndarray]:
+def groups_by_view(
+    flagged: np.ndarray, weights: np.ndarray, min_size: int = 1, share: float = 1.0
+) -> dict[int, np.ndarray]:
     """View index -> ``[N]`` bool: the flagged Gaussians (``flagged`` ``[N]`` bool) whose blending weight
-    (``weights`` ``[N, V]`` >= 0) is largest in that view; Gaussians no view sees are in no group.
-    Groups smaller than ``min_size`` are left out. Views in ascending order."""
+    (``weights`` ``[N, V]`` >= 0) is largest in that view and, with ``share`` < 1, those whose weight
+    there is at least ``share`` of their largest (a Gaussian is then in the group of every view that
+    sees it nearly as much as its first). Gaussians no view sees are in no group. Groups smaller than
+    ``min_size`` are left out. Views in ascending order."""
     weights = np.asarray(weights)
     if weights.ndim != 2 or weights.shape[0] != flagged.shape[0]:
         raise ValueError(f"weights {weights.shape} must be (N, V) with N = {flagged.shape[0]}")
-    seen = weights.max(axis=1) > 0
-    dominant = np.argmax(weights, axis=1)
+    rows = np.nonzero(flagged & (weights.max(axis=1) > 0))[0]
+    seen = weights[rows]
+    member = np.zeros(seen.shape, dtype=bool)
+    member[np.arange(len(rows)), np.argmax(seen, axis=1)] = True
+    if share < 1.0:
+        member |= seen >= share * seen.max(axis=1, keepdims=True)
     out = {}
-    for v in np.unique(dominant[flagged & seen]):
-        group = flagged & seen & (dominant == v)
-        if int(group.sum()) >= min_size:
-            out[int(v)] = group
+    for v in np.nonzero(member.sum(axis=0) >= max(min_size, 1))[0]:
+        group = np.zeros(flagged.shape[0], dtype=bool)
+        group[rows[member[:, v]]] = True
+        out[int(v)] = group
     return out
 
 

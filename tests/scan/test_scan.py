@@ -308,6 +308,20 @@ def test_the_verdict_counts_a_connected_region_in_front_of_an_opaque_scene():
     groups = groups_by_view(flagged, weights)
     assert sorted(groups) == [0, 1] and groups[1].tolist() == [True, False, False, False]  # row 2 unseen
     assert groups_by_view(flagged, weights, min_size=2) == {}
+    # poison seen nearly alike by two views (support views) belongs to both at share 0.5 (the 0.4
+    # below it does not); an exact tie goes to the first view alone at share 1
+    weights = np.array([[0.0, 5.0, 3.0], [4.0, 4.0, 0.0], [1.0, 0.0, 0.4], [0.0, 0.0, 0.0]])
+    flagged = np.array([True, True, True, True])
+    assert {v: g.tolist() for v, g in groups_by_view(flagged, weights).items()} == {
+        0: [False, True, True, False],
+        1: [True, False, False, False],
+    }
+    assert {v: g.tolist() for v, g in groups_by_view(flagged, weights, share=0.5).items()} == {
+        0: [False, True, True, False],
+        1: [True, True, False, False],
+        2: [True, False, False, False],
+    }
+    assert sorted(groups_by_view(flagged, weights, min_size=2, share=0.5)) == [0, 1]
 
     h, w = 10, 12
     scene = RenderedView(np.full((h, w, 3), 0.2), np.ones((h, w)), np.full((h, w), 4.0))
