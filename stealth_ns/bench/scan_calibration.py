@@ -6,9 +6,8 @@ from rows written since it was recorded, its number of Gaussians) and the views 
 meant for (``tampered``: training indices of the poisoned views and of their support views; empty
 for a clean run). The rule has two numbers: a region threshold ``t`` and a group size ``m`` (the
 scan's ``--min-group``). A group *counts* when it has at least ``m`` Gaussians (a group whose size was
-not recorded always does), is detailed enough to hold a picture and floats free of the scene (the
-scan's fixed ``--max-pixels-per-gaussian`` and ``--detached-ratio``, recorded per group) and covers at
-least ``t`` of its view. The scan
+not recorded always does), is detailed enough to hold a picture (the scan's fixed
+``--max-pixels-per-gaussian``, recorded per group) and covers at least ``t`` of its view. The scan
 calls a model suspicious when some group counts, and it is *right* on
 
 * a clean model when no group counts;
@@ -59,13 +58,8 @@ def scored(rows: Sequence[Row]) -> list[Row]:
 
 def _groups(row: Row, size: float) -> list[dict[str, Any]]:
     """The groups of ``row`` with at least ``size`` Gaussians (those of unrecorded size too) that are
-    detailed enough to hold a picture and float free of the scene (the scan's
-    ``--max-pixels-per-gaussian`` and ``--detached-ratio``, not fitted here; unrecorded: they count)."""
-    return [
-        g
-        for g in row["groups"]
-        if g.get("gaussians", math.inf) >= size and g.get("detailed", True) and not g.get("attached", False)
-    ]
+    detailed enough to hold a picture (the scan's ``--max-pixels-per-gaussian``, not fitted here)."""
+    return [g for g in row["groups"] if g.get("gaussians", math.inf) >= size and g.get("detailed", True)]
 
 
 def _shares(row: Row, size: float = 0) -> tuple[float, float, float]:

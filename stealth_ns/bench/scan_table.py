@@ -12,7 +12,6 @@ kept apart: there may be no illusion to find in them.
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -44,7 +43,6 @@ from stealth_ns.gaussians.ply import write_gaussian_ply
 from stealth_ns.gaussians.transform import transform_cloud
 from stealth_ns.runs.imported import ImportedModel, load_model
 from stealth_ns.runs.loaded import attack_record
-from stealth_ns.scan.attachment import is_detached
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.outputs import ground_truth
 from stealth_ns.scan.scanner import Group, scan_model
@@ -125,8 +123,8 @@ def scan_run(
 
 def _group_row(group: Group, cfg: ScanConfig, poison: np.ndarray | None) -> dict[str, Any]:
     """A group as a row records it: its view, region, size, whether it is detailed enough to hold a
-    picture, how free of the scene it floats (and whether that is attached, by the scan's rule) and
-    (``poison``: the run's ``[N]`` bool tag, or None) the share of its Gaussians that are poison."""
+    picture and (``poison``: the run's ``[N]`` bool tag, or None) the share of its Gaussians that are
+    poison."""
     n = int(group.members.sum())
     return {
         "view": group.name,
@@ -135,8 +133,6 @@ def _group_row(group: Group, cfg: ScanConfig, poison: np.ndarray | None) -> dict
         "gaussians": n,
         "pixels": group.region.pixels,
         "detailed": is_detailed(group.region.pixels, n, cfg.max_pixels_per_gaussian),
-        "detachment": round(group.detachment, 4) if math.isfinite(group.detachment) else None,
-        "attached": not is_detached(group.detachment, cfg.detached_ratio),
         "poison": None if poison is None or n == 0 else round(float(poison[group.members].mean()), 4),
     }
 

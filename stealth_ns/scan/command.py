@@ -87,15 +87,7 @@ def summary_lines(doc: dict[str, Any], output: Path) -> list[str]:
         best = doc["groups"][0] if doc["groups"] else {"region_share": 0.0}
         cfg = doc["config"]
         share = best["region_share"]
-        free = best.get("detachment")
-        if share >= cfg["region_threshold"] and free is not None and free < cfg["detached_ratio"]:
-            lines.append(
-                f"  no targeted view: the largest region ({100 * share:.2f}% of {best['name']}) is drawn by "
-                f"Gaussians attached to the scene (the nearest unflagged one at {free:.2f} of their distance "
-                f"to the camera, below --detached-ratio {cfg['detached_ratio']:g}): an object of the scene "
-                "near the camera; see the page"
-            )
-        elif share >= cfg["region_threshold"]:
+        if share >= cfg["region_threshold"]:
             lines.append(
                 f"  no targeted view: the largest region ({100 * share:.2f}% of {best['name']}) is drawn "
                 f"by {best['gaussians']} Gaussians at {best['pixels_per_gaussian']:g} pixels each, a blob "

@@ -63,14 +63,6 @@ class ScanConfig:
     illusion is a picture, a few large Gaussians paint only a blob. Measured (docs/scan.md): every
     poison group's region has 0.05-8.6 pixels per Gaussian of its group, a clean capture's floater
     (``bird``, 10 Gaussians over 1.30 % of a view) 677."""
-    detached_ratio: float = 0.5
-    """...and its Gaussians float free of the scene: the median over its opaque Gaussians of the distance
-    to the nearest opaque unflagged Gaussian, over the distance to the view's camera, is at least this
-    (:mod:`stealth_ns.scan.attachment`; 0: every group counts). A real object near a camera stands on or
-    reaches into the scene beyond the near line; an illusion floats in the empty space before it.
-    Measured (docs/scan.md, ninth pass): clean walk-throughs' boxes 0.04-0.27, every poison group of 17
-    successful attacks on 5 scenes at least 1.3; chosen between the walk-through's boxes and its poison
-    (1.4-6.0) and below the ~0.8 that poison in front of the near line has from the surface behind it."""
     frame: str = "auto"
     """World frame of a PLY, one of auto (each frame below tried, the best-matching kept), nerfstudio
     (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat without --center, gsplat
@@ -121,7 +113,6 @@ class ScanConfig:
             ("--near-ratio", self.near_ratio > 0, "positive"),
             ("--region-threshold", 0.0 < self.region_threshold <= 1.0, "in (0, 1]"),
             ("--max-pixels-per-gaussian", self.max_pixels_per_gaussian > 0, "positive"),
-            ("--detached-ratio", self.detached_ratio >= 0, "0 or more"),
             ("--render-match-floor", math.isfinite(self.render_match_floor), "a number"),
         )
         for name, ok, rule in checks:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
-import math
 from pathlib import Path
 from typing import Any
 
@@ -75,7 +74,6 @@ def group_entry(group: Group) -> dict[str, Any]:
         "region_pixels": r.pixels,
         "region_box": list(r.box),
         "pixels_per_gaussian": round(r.pixels / max(int(group.members.sum()), 1), 3),
-        "detachment": round(group.detachment, 4) if math.isfinite(group.detachment) else None,
         "targeted": group.targeted,
     }
 
@@ -111,9 +109,7 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
             f"there (below {cfg.depth_ratio:g} of its depth and {cfg.near_ratio:g} of the view's near "
             f"depth, {result.near_share:.2f} of its median scene depth) and changing its colour by more than "
             f"{cfg.colour_change:g}, with at least one Gaussian per {cfg.max_pixels_per_gaussian:g} pixels "
-            f"of the region, and floating free of the scene (the nearest unflagged Gaussian at least "
-            f"{cfg.detached_ratio:g} of their distance to the camera away, median; a group attached to the "
-            "scene is an object of it near the camera)"
+            "of the region"
         ),
         "near_depth_share": round(result.near_share, 4),
         "model": {

@@ -8,14 +8,12 @@ ground truth (:mod:`stealth_ns.defences.posthoc`: view-support, camera-proximity
 grad-concentration) and flagged by their rules; the flagged Gaussians are grouped by the views that
 see them most, and each group's effect on its view is rendered (:mod:`stealth_ns.scan.verdict`).
 A group whose connected effect covers ``region_threshold`` of its view, with no more than
-``max_pixels_per_gaussian`` pixels of it per Gaussian of the group, floating free of the rest of the
-scene (:mod:`stealth_ns.scan.attachment`, ``detached_ratio``), makes the model *suspicious* and names
-that view as targeted; the cleaned model is the input without those groups.
+``max_pixels_per_gaussian`` pixels of it per Gaussian of the group, makes the model *suspicious*
+and names that view as targeted; the cleaned model is the input without those groups.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,9 +27,7 @@ from stealth_ns.defences.posthoc import DefenceInputs, Scored, final_learning_ra
 from stealth_ns.foundation.errors import StealthNSError
 from stealth_ns.method.datamanager import dataset_image_names
 from stealth_ns.method.render_view import render_camera
-from stealth_ns.raster.projection import viewmat_from_c2w
 from stealth_ns.runs.imported import ImportedModel
-from stealth_ns.scan.attachment import detachment, drawing_region, is_detached, scene_anchors
 from stealth_ns.scan.config import ScanConfig
 from stealth_ns.scan.fit import check_fit
 from stealth_ns.scan.photos import PhotoUse, photo_signals_refused
@@ -56,9 +52,6 @@ class Group:
     """``[N]`` bool."""
     region: Region
     targeted: bool
-    detachment: float = math.inf
-    """How free of the scene the group floats (:func:`~stealth_ns.scan.attachment.detachment`); measured
-    for every group whose region is not empty."""
     renders: dict[str, np.ndarray] = field(default_factory=dict)
     """For a targeted view: ``full``, ``without`` and ``flagged`` ([H, W, 3] in [0, 1]) and ``effect``
     ([H, W] bool, the region)."""
@@ -119,28 +112,6 @@ def _group_effect(model: Any, camera: Any, members: np.ndarray, rule: EffectRule
     return region, {"full": full.rgb, "without": rest.rgb, "flagged": group.rgb, "effect": region.mask}
 
 
-class _SceneGeometry:
-    """The Gaussians' centres and opacities and the cameras, to measure how free of the scene a group
-    floats (:mod:`stealth_ns.scan.attachment`); the scene's search tree is built at the first group."""
-
-    def __init__(self, model: Any, cameras: Any, flagged: np.ndarray) -> None:
-        self.means = model.means.detach().cpu().numpy()
-        self.opacity = torch.sigmoid(model.opacities.detach()).squeeze(-1).cpu().numpy()
-        self.cameras, self.flagged = cameras, flagged
-        self._anchors: Any = None
-        self._built = False
-
-    def detachment(self, view: int, members: np.ndarray, region: Region) -> float:
-        """How free of the scene the ``members`` drawing ``region`` in ``view`` float."""
-        if not self._built:
-            self._anchors, self._built = scene_anchors(self.means, self.opacity, self.flagged), True
-        c2w = self.cameras.camera_to_worlds[view : view + 1].cpu()
-        viewmat = viewmat_from_c2w(c2w)[0].numpy()
-        K = self.cameras.get_intrinsics_matrices()[view].cpu().numpy()
-        drawing = drawing_region(self.means, members, viewmat, K, region.mask)
-        return detachment(self.means, self.opacity, drawing, c2w[0, :, 3].numpy(), self._anchors)
-
-
 def _render_match(
     imported: ImportedModel, cfg: ScanConfig, photos: PhotoUse, echo: Callable[[str], None]
 ) -> float:
@@ -196,14 +167,10 @@ def scan_model(
     flagged = np.logical_or.reduce([s.pruned for s in scored.values()])
     t0 = time.perf_counter()
     groups = []
-    scene = _SceneGeometry(model, cameras, flagged)
     for view, members in groups_by_view(flagged, weights, cfg.min_group, cfg.group_share).items():
         region, renders = _group_effect(model, cameras[view : view + 1], members, effect)
-        free = scene.detachment(view, members, region) if region.pixels else math.inf
-        targeted = is_targeted(
-            region, int(members.sum()), cfg.region_threshold, cfg.max_pixels_per_gaussian
-        ) and is_detached(free, cfg.detached_ratio)
-        groups.append(Group(view, names[view], members, region, targeted, free, renders if targeted else {}))
+        targeted = is_targeted(region, int(members.sum()), cfg.region_threshold, cfg.max_pixels_per_gaussian)
+        groups.append(Group(view, names[view], members, region, targeted, renders if targeted else {}))
     groups.sort(key=lambda g: (-g.region.share, g.view))
     seconds["groups"] = round(time.perf_counter() - t0, 2)
     return ScanResult(imported, cfg, scored, flagged, groups, seconds, render_match, photos, near_share)

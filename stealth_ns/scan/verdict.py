@@ -15,8 +15,7 @@ each training view v:
   and removing ``G_v`` changes the colour;
 * its region: the largest 8-connected part of the effect (:func:`largest_region`), as a share of the
   image. A view whose region reaches the threshold, drawn by enough Gaussians to hold a picture
-  (:func:`is_targeted`) and floating free of the scene (:mod:`stealth_ns.scan.attachment`: a real
-  object near a camera is attached to the rest of the scene), is named a targeted view.
+  (:func:`is_targeted`), is named a targeted view.
 """
 
 from __future__ import annotations

@@ -155,11 +155,3 @@ def test_a_group_too_coarse_for_a_picture_never_counts():
     assert verdict_at(floater, 0.01) == "clean" and right_at(floater, 0.001)
     floater["groups"][0]["detailed"] = True
     assert verdict_at(floater, 0.01) == "suspicious"
-
-
-def test_a_group_attached_to_the_scene_never_counts():
-    box = row("a", "clean", [(0, 0.05, 500)])
-    box["groups"][0]["attached"] = True  # the scan's --detached-ratio said so
-    assert verdict_at(box, 0.01) == "clean" and right_at(box, 0.001)
-    box["groups"][0]["attached"] = False
-    assert verdict_at(box, 0.01) == "suspicious" and not right_at(box, 0.01)

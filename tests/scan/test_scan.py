@@ -221,7 +221,6 @@ def test_scan_errors_are_one_line(tiny_run_pair, tiny_orbit_scene, tmp_path):
         (["--model", str(tiny_run_pair[0]), "--data", str(tmp_path / "elsewhere")], "was trained on"),
         (["--model", str(tiny_run_pair[0]), "--region-threshold", "0"], "--region-threshold must be in"),
         (["--model", str(tiny_run_pair[0]), "--group-share", "0"], "--group-share must be in (0, 1]"),
-        (["--model", str(tiny_run_pair[0]), "--detached-ratio", "-1"], "--detached-ratio must be 0 or more"),
         (["--model", str(tiny_run_pair[0]), "--signals", "zscore"], "unknown signal 'zscore'"),
     ]
     for args, needle in cases:

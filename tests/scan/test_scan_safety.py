@@ -279,7 +279,7 @@ def test_bench_scan_records_what_it_wrote(tiny_run_pair, tmp_path):
     assert record["files"] == {k: v for k, v in digest(out).items() if not k.startswith(".")}
     assert set(record["files"]) == {"scan-results.json", "scan.md", "roc.png"}
     assert rows[0]["tampered"] == [] and 0 < rows[0]["near_depth_share"] <= 1
-    keys = {"view", "index", "share", "gaussians", "pixels", "detailed", "detachment", "attached", "poison"}
+    keys = {"view", "index", "share", "gaussians", "pixels", "detailed", "poison"}
     assert rows[0]["groups"] and all(keys == set(g) for g in rows[0]["groups"])
     assert all(g["poison"] == 0.0 for g in rows[0]["groups"])  # the run's tag: a clean run has no poison
     assert "Needs runs of at least two scenes." in (out / "scan.md").read_text()
