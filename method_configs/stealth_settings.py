@@ -41,6 +41,11 @@ STEALTH_SETTINGS: tuple[tuple[str, AttackSettings, str], ...] = (
         "depth floor 0.3 + support views 3 (adaptive)",
     ),
     (
+        "ad-floor-0.35-support-3",
+        AttackSettings.of(depth_floor=0.35, support_views=3),
+        "depth floor 0.35 + support views 3 (adaptive)",
+    ),
+    (
         "ad-floor-0.45-support-3",
         AttackSettings.of(depth_floor=0.45, support_views=3),
         "depth floor 0.45 + support views 3 (adaptive)",
@@ -63,6 +68,7 @@ ADAPTIVE_VARIANTS: tuple[str, ...] = (
     "ad-floor-0.15",
     "ad-floor-0.3",
     "ad-floor-0.3-support-3",
+    "ad-floor-0.35-support-3",
     "ad-floor-0.45-support-3",
     "ad-floor-0.6-support-3",
     "ad-whitebox",

@@ -22,14 +22,17 @@ class ScanConfig:
     concentration_threshold: float = 0.5
     """view-support / grad-concentration flag a Gaussian seen by fewer than 1/threshold effective
     views (defend's default: 2 views)."""
-    proximity_threshold: float = 0.75
+    proximity_threshold: float = 0.9
     """camera-proximity flags a Gaussian nearer a training camera that has it in view than this share
-    of the camera's near depth: the scene's near-depth share (the median over the training views of
-    each one's 5th-percentile surface depth over its median) times the camera's median scene depth.
-    Measured (docs/scan.md): that share is 0.38-0.40 on a walk-through (``forward``), 0.72-0.74 on ``fox``;
-    0.75 of it puts the line at 0.29 of the median depth on ``forward``, whose clean model names views
-    with the line at 0.4, and at 0.55 on ``fox``, beyond the poison of the adaptive attack aimed at a
-    line at 0.3 of the median. defend's own rule (0.15 of the median) prunes no clean Gaussian."""
+    of the camera's near depth times the scene's near share ``s``: ``proximity_threshold * s**2`` of the
+    camera's median scene depth. ``s`` is the median over the training views of each one's 5th-percentile
+    surface depth over its median (0.38-0.40 on a walk-through, ``forward``; 0.72-0.74 on ``fox``).
+    The second factor ``s`` moves the line in front of the near surfaces of a scene that comes close to
+    its cameras, where the scene's own objects pass near them. Measured (docs/scan.md, tenth pass): the
+    line at 0.13-0.14 of the median depth on ``forward`` (boxes beside the path at 0.13-0.28; every
+    attack there with its poison beyond 0.1 fails) and at 0.48 on ``fox`` (the adaptive attack that
+    succeeds furthest out, a depth floor of 0.35 with support views, draws at 0.34-0.42). Measured over
+    values of it: the clean models stay clean up to 1.15, that attack is found from 0.7."""
     group_share: float = 0.5
     """A flagged Gaussian is in the group of the view that sees it most (its largest blending weight) and
     of every view where its weight is at least this share of its largest (1: the first view alone).
@@ -46,11 +49,12 @@ class ScanConfig:
     depth_ratio: float = 0.5
     """...and the group's expected depth is below this share of the rest's there (it floats in front
     of a surface)..."""
-    near_ratio: float = 0.75
-    """...and below this share of the view's near depth (as for ``proximity_threshold``: it floats near
-    the camera). Measured (docs/scan.md): the poison's pixels sit at 0.03-0.22 of the median depth (the
-    adaptive attack's at 0.31-0.33 on ``fox``), the edge of a capture that one view sees alone (the
-    rearmost view of a forward trajectory) at 0.37-1.0."""
+    near_ratio: float = 0.9
+    """...and below this share of the view's near depth times the near share (as for
+    ``proximity_threshold``: it floats near the camera). Measured (docs/scan.md): the poison's pixels sit
+    at 0.02-0.22 of the median depth (adaptive attacks' up to 0.42 on ``fox``), a walk-through's boxes
+    beside the path at 0.13-0.28, the edge of a capture that one view sees alone (the rearmost view of a
+    forward trajectory) at 0.37-1.0."""
     colour_change: float = 0.1
     """...and removing the group changes one of its colour channels by more than this (in [0, 1])."""
     region_threshold: float = 0.01
@@ -81,18 +85,19 @@ class ScanConfig:
 
     def defend_config(self, near_share: float) -> DefendConfig:
         """The same rules as ``stealth-ns defend`` applies them, camera-proximity's line at
-        ``proximity_threshold`` of the near depth (``near_share`` of the median depth)."""
+        ``proximity_threshold`` times ``near_share`` of the near depth (``near_share`` of the median
+        depth)."""
         return DefendConfig(
             defences=self.signals,
             concentration_threshold=self.concentration_threshold,
-            proximity_threshold=self.proximity_threshold * near_share,
+            proximity_threshold=self.proximity_threshold * near_share**2,
             seed=self.seed,
         )
 
     def effect_rule(self, near_share: float) -> EffectRule:
-        """The effect's thresholds, its near line at ``near_ratio`` of the near depth (``near_share`` of
-        the median depth)."""
-        return EffectRule(self.opaque, self.depth_ratio, self.near_ratio * near_share, self.colour_change)
+        """The effect's thresholds, its near line at ``near_ratio`` times ``near_share`` of the near depth
+        (``near_share`` of the median depth)."""
+        return EffectRule(self.opaque, self.depth_ratio, self.near_ratio * near_share**2, self.colour_change)
 
     def validate(self) -> None:
         """ValueError naming the option when a value is out of range or unknown."""

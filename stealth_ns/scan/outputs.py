@@ -106,10 +106,10 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
             f"suspicious when the flagged Gaussians one view sees most (or at least {cfg.group_share:.0%} as "
             f"much as the view that sees them most) cover, connected, at least "
             f"{cfg.region_threshold:.1%} of that view, floating in front of what the rest of the model shows "
-            f"there (below {cfg.depth_ratio:g} of its depth and {cfg.near_ratio:g} of the view's near "
-            f"depth, {result.near_share:.2f} of its median scene depth) and changing its colour by more than "
-            f"{cfg.colour_change:g}, with at least one Gaussian per {cfg.max_pixels_per_gaussian:g} pixels "
-            "of the region"
+            f"there (below {cfg.depth_ratio:g} of its depth and {cfg.near_ratio:g} x {result.near_share:.2f} "
+            f"of the view's near depth, itself {result.near_share:.2f} of its median scene depth) and "
+            f"changing its colour by more than {cfg.colour_change:g}, with at least one Gaussian per "
+            f"{cfg.max_pixels_per_gaussian:g} pixels of the region"
         ),
         "near_depth_share": round(result.near_share, 4),
         "model": {

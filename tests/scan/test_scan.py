@@ -302,7 +302,7 @@ def test_the_verdict_counts_a_connected_region_in_front_of_an_opaque_scene():
     from stealth_ns.scan.config import ScanConfig
     from stealth_ns.scan.verdict import RenderedView, effect_mask, groups_by_view, largest_region
 
-    rule = ScanConfig().effect_rule(0.4)  # the near line at 0.3 of the median depth
+    rule = ScanConfig().effect_rule(0.4)  # a walk-through: the near line at 0.144 of the median depth
 
     weights = np.array([[0.0, 5.0, 1.0], [2.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 1.0, 3.0]])
     flagged = np.array([True, True, True, False])
@@ -339,7 +339,10 @@ def test_the_verdict_counts_a_connected_region_in_front_of_an_opaque_scene():
     assert not effect_mask(full, scene, far, 4.0, rule).any()
     deeper = RenderedView(full_rgb, group_alpha, np.full((h, w), 1.8))  # 0.45 of the scene depth
     assert not effect_mask(full, scene, deeper, 4.0, rule).any()
-    # where nothing comes close to the cameras (near share 0.9) the line moves out to 0.675 of it
+    # a box beside a walk-through's path (0.2 of the scene depth) is not counted; where nothing comes
+    # close to the cameras (near share 0.9) the line moves out to 0.729 of it
+    beside = RenderedView(full_rgb, group_alpha, np.full((h, w), 0.8))
+    assert not effect_mask(full, scene, beside, 4.0, rule).any()
     assert effect_mask(full, scene, deeper, 4.0, ScanConfig().effect_rule(0.9)).sum() == 17
     nothing_behind = RenderedView(scene.rgb, np.zeros((h, w)), scene.depth)
     assert not effect_mask(full, nothing_behind, near, 4.0, rule).any()
