@@ -203,7 +203,7 @@ def test_all_tables_share_runs(tmp_path, monkeypatch):
     settings = {(r.scene, r.attack, r.view, r.poisoning, r.poison_attack) for r in RUNS}
     # orbit 22 + 10 of the stealth tables (2 more are Tables 3 and 5's); forward / facing / fox 8, 6 of
     # Table 3 and 11 of the stealth tables (st-views-2 is Table 3's views-2) each
-    assert len(settings) == len(RUNS) == 135  # + Table 9's seven adaptive runs on each of the 4 scenes
+    assert len(settings) == len(RUNS) == 139  # + Table 9's eight adaptive runs on each of the 4 scenes
     easy = plan.get("forward/easy")
     assert "<EASY view of the KDE protocol>" in easy.spec.options
     assert easy.spec.attack.config().views == ("<EASY view of the KDE protocol>",)

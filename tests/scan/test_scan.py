@@ -303,6 +303,7 @@ def test_the_verdict_counts_a_connected_region_in_front_of_an_opaque_scene():
     from stealth_ns.scan.verdict import RenderedView, effect_mask, groups_by_view, largest_region
 
     rule = ScanConfig().effect_rule(0.4)  # a walk-through: the near line at 0.144 of the median depth
+    assert ScanConfig().defend_config(0.4).proximity_threshold == pytest.approx(rule.near_ratio) == 0.144
 
     weights = np.array([[0.0, 5.0, 1.0], [2.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 1.0, 3.0]])
     flagged = np.array([True, True, True, False])
