@@ -32,7 +32,7 @@ class ScanConfig:
     line at 0.13-0.14 of the median depth on ``forward`` (boxes beside the path at 0.13-0.28; every
     attack there with its poison beyond 0.1 fails) and at 0.48 on ``fox`` (the adaptive attack that
     succeeds furthest out, a depth floor of 0.35 with support views, draws at 0.34-0.42). Measured over
-    values of it: the clean models stay clean up to 1.15, that attack is found from 0.7."""
+    values of it: the clean walk-throughs stay clean up to 1.15, that attack is found from 0.7."""
     group_share: float = 0.5
     """A flagged Gaussian is in the group of the view that sees it most (its largest blending weight) and
     of every view where its weight is at least this share of its largest (1: the first view alone).
