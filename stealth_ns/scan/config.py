@@ -12,6 +12,12 @@ from stealth_ns.scan.verdict import EffectRule
 SIGNALS: tuple[str, ...] = ("view-support", "camera-proximity", "grad-concentration")
 
 
+def near_line(ratio: float, near_share: float) -> float:
+    """Both near lines, as a share of a camera's median scene depth: ``ratio`` times ``near_share`` of
+    the near depth, which is itself ``near_share`` of the median depth (``ratio * near_share**2``)."""
+    return ratio * near_share**2
+
+
 @dataclass
 class ScanConfig:
     """What flags a Gaussian and when a group of flagged Gaussians makes a model suspicious."""
@@ -85,19 +91,18 @@ class ScanConfig:
 
     def defend_config(self, near_share: float) -> DefendConfig:
         """The same rules as ``stealth-ns defend`` applies them, camera-proximity's line at
-        ``proximity_threshold`` times ``near_share`` of the near depth (``near_share`` of the median
-        depth)."""
+        :func:`near_line` of ``proximity_threshold``."""
         return DefendConfig(
             defences=self.signals,
             concentration_threshold=self.concentration_threshold,
-            proximity_threshold=self.proximity_threshold * near_share**2,
+            proximity_threshold=near_line(self.proximity_threshold, near_share),
             seed=self.seed,
         )
 
     def effect_rule(self, near_share: float) -> EffectRule:
-        """The effect's thresholds, its near line at ``near_ratio`` times ``near_share`` of the near depth
-        (``near_share`` of the median depth)."""
-        return EffectRule(self.opaque, self.depth_ratio, self.near_ratio * near_share**2, self.colour_change)
+        """The effect's thresholds, its near line at :func:`near_line` of ``near_ratio``."""
+        line = near_line(self.near_ratio, near_share)
+        return EffectRule(self.opaque, self.depth_ratio, line, self.colour_change)
 
     def validate(self) -> None:
         """ValueError naming the option when a value is out of range or unknown."""
