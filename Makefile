@@ -18,7 +18,7 @@ demo: env
 
 # Test processes side by side (pytest-xdist), each test file in one of them: most of the suite waits on
 # one-threaded start-ups (torch, nerfstudio) of the commands it runs. On 2 cores: 1310 s with one, 643 s
-# with two (docs/testing.md). TEST_WORKERS=0 runs the suite in this process (no xdist).
+# with two (docs/design/testing.md). TEST_WORKERS=0 runs the suite in this process (no xdist).
 TEST_WORKERS ?= 2
 PYTEST_ARGS := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
 

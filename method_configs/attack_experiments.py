@@ -49,7 +49,7 @@ PRESETS: tuple[str, ...] = ("orbit", "forward", "facing")
 FOLDERS: dict[str, str] = {"fox": "../shared/data/fox"}
 #: The phone captures at their own resolution (``../shared/data/captures``, COLMAP ``sparse/0``):
 #: ``--scenes captures`` names all three, ``--scenes beer`` one. Not in the default list: a run on
-#: them takes several times as long as one on a generated scene (docs/captures.md).
+#: them takes several times as long as one on a generated scene (docs/design/captures.md).
 CAPTURES: dict[str, str] = {name: f"../shared/data/captures/{name}" for name in ("beer", "bird", "cup")}
 #: ``--scenes`` words that stand for several dataset folders.
 FOLDER_GROUPS: dict[str, dict[str, str]] = {"captures": CAPTURES}
@@ -388,7 +388,7 @@ class TableSpec:
 
 NO_BASELINES = (
     "IPA-Splat: `stealth-ns ipa-poison` (the paper's settings: epsilon 32/255, T = 200, A = 10; "
-    "docs/baselines.md) writes a poisoned dataset and a plain run (attack off) trains on it. IPA-NeRF "
+    "docs/design/baselines.md) writes a poisoned dataset and a plain run (attack off) trains on it. IPA-NeRF "
     "(Nerfacto / Instant-NGP), NeRF methods, is not implemented: no rows."
 )
 DATA_ONLY_NOTE = (
@@ -527,7 +527,7 @@ TABLES: tuple[TableSpec, ...] = (
 
 
 _STEALTH_NOTES = (
-    "How each run hides is in 'Stealth under the post-hoc defences' below; docs/stealth.md reads "
+    "How each run hides is in 'Stealth under the post-hoc defences' below; docs/design/stealth.md reads "
     "the two tables together. Poisoned view: as in Table 1, whose in-loop row is the first here.",
 )
 
@@ -555,7 +555,7 @@ TABLES += (
         7,
         "Stealth-aware variants (not in the paper)",
         STEALTH_VARIANTS,
-        "Variants of the attack designed to hide from the concentration detectors (docs/stealth.md): "
+        "Variants of the attack designed to hide from the concentration detectors (docs/design/stealth.md): "
         "support views (--pipeline.attack.support-views K) and the surface placement.",
     ),
     _stealth_table(
@@ -568,7 +568,7 @@ TABLES += (
         9,
         "Adaptive attacks against camera-proximity and the scan (not in the paper)",
         ADAPTIVE_VARIANTS,
-        "Attacks that know the defence (docs/stealth.md, 'Adaptive attacks'): a depth floor in the placement "
+        "Attacks that know the defence (docs/design/stealth.md, 'Adaptive attacks'): a depth floor in the placement "
         "(--pipeline.attack.depth-floor F: no poison nearer a camera that has it in view than F of that "
         "camera's scene depth), a white-box training term (--pipeline.attack.proximity-weight W: the poison "
         "trained to camera-proximity's ratio 0.3), each also with support views against view-support.",

@@ -87,7 +87,7 @@ def trainer_config(
         ),
         optimizers=gaussian_optimizers(max_steps, camera_warmup=max(1, max_steps // 30)),
         # this machine only (nerfstudio: 0.0.0.0, every interface); open it up with
-        # --viewer.websocket-host 0.0.0.0 (docs/viewer.md)
+        # --viewer.websocket-host 0.0.0.0 (docs/design/viewer.md)
         viewer=ViewerConfig(num_rays_per_chunk=1 << 15, websocket_host=VIEWER_HOST),
         vis="viewer",
     )

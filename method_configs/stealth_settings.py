@@ -9,7 +9,7 @@ from __future__ import annotations
 from stealth_ns.attack.options import AttackSettings
 
 #: Table 7's rows beyond the default attack: the stealth-aware variants, then the attack's other
-#: knobs one at a time (``docs/stealth.md``): (run name, settings given after the default attack's,
+#: knobs one at a time (``docs/design/stealth.md``): (run name, settings given after the default attack's,
 #: label). A scene shows Table 3's (and a uniform scene Table 5's) runs for the settings they share
 #: (``attack_experiments.shared_run``).
 STEALTH_SETTINGS: tuple[tuple[str, AttackSettings, str], ...] = (
@@ -63,7 +63,7 @@ STEALTH_SETTINGS: tuple[tuple[str, AttackSettings, str], ...] = (
     ),
 )
 #: Table 9's settings: adaptive attacks, aimed at camera-proximity and the scan as they are (issue 60);
-#: the deeper floors at the scan's scene-level near line (docs/scan.md).
+#: the deeper floors at the scan's scene-level near line (docs/design/scan.md).
 ADAPTIVE_VARIANTS: tuple[str, ...] = (
     "ad-floor-0.15",
     "ad-floor-0.3",

@@ -10,12 +10,12 @@ opacity reset every 10 refinements. Every 10 steps -- a literal 10x -- averages 
 densification gradient over too few views: on the 52-view orbit scene it grew 338k Gaussians
 (15.7 min, held-out PSNR 25.2). The grow threshold on the plain gradient is 4e-4 (gsplat's
 default 2e-4 grew 173k Gaussians, 6 min, PSNR 25.9); with 4e-4: 88k Gaussians, 4 min,
-PSNR 25.9 (docs/training_step.md).
+PSNR 25.9 (docs/design/training_step.md).
 
 Object captures (``blender-data``: transparent images composited onto white, cameras outside
 the object box) need no setting of their own: the model trains on the dataparser's background
 and draws a random initialisation inside the box (``match_dataparser_background``,
-``random_init_in_object_box``); docs/cpu_rasterizer.md measures what they change on the ``object``
+``random_init_in_object_box``); docs/design/cpu_rasterizer.md measures what they change on the ``object``
 preset.
 """
 

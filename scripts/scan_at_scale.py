@@ -1,6 +1,6 @@
 """The scan at the size people shoot: a ~1M-Gaussian model of a 1-MP, 100-view scene, scanned and timed.
 
-Reproduces docs/scan.md "At 1 MP" (issue 58, item 5)::
+Reproduces docs/design/scan.md "At 1 MP" (issue 58, item 5)::
 
     .venv/bin/python scripts/scan_at_scale.py --output /tmp/scale
 

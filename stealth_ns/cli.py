@@ -217,18 +217,18 @@ class BenchAttack:
     attacks: tuple[Literal["in-loop", "data-only", "ipa"], ...] = ("in-loop", "data-only", "ipa")
     """Attacks whose rows Tables 1-3 show: in-loop (ns-train stealth-splat*), data-only (a poisoned dataset
     from stealth-ns poison-dataset, plain victim) and ipa (IPA-Splat, stealth-ns ipa-poison: the attacker
-    trains once more per row). docs/baselines.md."""
+    trains once more per row). docs/design/baselines.md."""
     only: tuple[str, ...] = ()
     """Train only the runs whose name (SCENE/RUN, e.g. fox/views-2 or st-support-3) contains one of these,
     with their scenes' clean baselines; the tables' other cells read n/a."""
     defend: bool = False
     """Also Table D, stealth under defences: stealth-ns defend on each scene's Table 1 poisoned run into
     OUTPUT/defend/SCENE (adds Table 1; its input-filter defence retrains each of those runs once;
-    docs/defences.md)."""
+    docs/design/defences.md)."""
     executor: Annotated[str, tyro.conf.arg(metavar="{local,ray}")] = "local"
     """Where the trainings run: local (one after another on this machine) or ray (Ray tasks on a
     cluster, in parallel; needs pip install 'stealth-ns[cluster]' and run folders on a file system
-    every node sees at the same path; docs/cluster.md)."""
+    every node sees at the same path; docs/design/cluster.md)."""
     ray_address: Annotated[
         str | None, tyro.conf.arg(metavar="ADDR", help_behavior_hint="(default: RAY_ADDRESS, else local)")
     ] = None
@@ -364,7 +364,7 @@ class Defend:
 
 @dataclass
 class BenchScan:
-    """Scan every run of a bench attack folder: the verdict against what each run is (docs/scan.md)."""
+    """Scan every run of a bench attack folder: the verdict against what each run is (docs/design/scan.md)."""
 
     runs: Path
     """A `stealth-ns bench attack` output folder (or its results.json): the runs to scan."""
@@ -377,7 +377,7 @@ class BenchScan:
     poison tag (OUTPUT/plys/), then scanned with --frame auto."""
     ply_frame: PlyFrame = "dataset"
     """With --as-ply: the frame the PLYs are written in: the dataset's own (official 3DGS, OpenSplat by
-    default), OpenSplat's --center, or gsplat simple_trainer's default normalised frame (docs/scan.md)."""
+    default), OpenSplat's --center, or gsplat simple_trainer's default normalised frame (docs/design/scan.md)."""
     fit_first: tuple[str, ...] = ()
     """Scenes on which the held-out calibration first chooses the region threshold (judged on the
     other scenes, then the halves swap). Default: every other scene, in the order of results.json."""

@@ -7,8 +7,8 @@ paper's verdict, pictures. Every number printed is read from the report, which m
 Finished runs are reused, so a second ``stealth-ns demo`` only rewrites the report.
 
 The two trainings run side by side, each on half of the CPU cores (the Python side of a training
-step leaves the second core idle; docs/training_step.md). A training gives bitwise the same model at
-any thread count (docs/determinism.md), so the figures do not depend on the machine's core count.
+step leaves the second core idle; docs/design/training_step.md). A training gives bitwise the same model at
+any thread count (docs/design/determinism.md), so the figures do not depend on the machine's core count.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ DEMO_PRESET = "facing"
 """The generated scene the demo attacks. ``facing`` (LLFF-like, 24 views), because its verdict holds by
 a wide margin at every seed measured: V-illusory 44.4-46.0 dB over seeds 0-2, where ``orbit``'s default
 view gave 29.8, 28.5 and 19.8 dB, one failure and two within 4 dB of the 25-dB line
-(docs/determinism.md)."""
+(docs/design/determinism.md)."""
 
 
 @dataclass

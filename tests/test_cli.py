@@ -55,7 +55,7 @@ REPORT = ["report", "--poisoned", "{tmp}/run", "--clean", "{tmp}/c", "--output",
 )
 def test_bad_arguments_are_refused_before_torch_and_nerfstudio_load(tmp_path, args, needle):
     """A mistyped option or output folder costs a second, not the 4-15 s of importing torch and
-    nerfstudio first (docs/testing.md)."""
+    nerfstudio first (docs/design/testing.md)."""
     for run in ("run", "c"):
         (tmp_path / run).mkdir()
         (tmp_path / run / "config.yml").write_text("x: 1\n")

@@ -1,7 +1,7 @@
 """The attack's configuration: everything a user sets, in one place (``--pipeline.attack.*``).
 
 Defaults come from the paper (StealthAttack, ICCV 2025, §3-4) and, where the paper is
-silent, from the authors' code (see ``docs/attack.md``).
+silent, from the authors' code (see ``docs/design/attack.md``).
 
 Units: the defaults are scale-free -- ``t_min_fraction`` is a fraction of the poisoned view's
 scene depth, ``grid_resolution`` / ``bandwidth`` count voxels, ``poison_scale`` counts pixel
@@ -59,7 +59,7 @@ class AttackConfig:
 
     support_views: int = 0
     """K training views nearest each poisoned view show the illusion too (0 = the paper's attack): a
-    stealth-aware variant (``stealth_ns.attack.support``, ``docs/stealth.md``). Their images become
+    stealth-aware variant (``stealth_ns.attack.support``, ``docs/design/stealth.md``). Their images become
     renders of the poison over their own, and the poison goes where they see it, so its support
     spreads over K + 1 views. Needs the density-guided component and GT replacement."""
 
@@ -78,13 +78,13 @@ class AttackConfig:
     innocent training cameras (inside their image and not behind the surface their render
     shows), the KDE density breaking ties; a part of the ray no innocent camera sees is searched
     from the nearer of ``t_min_fraction`` and ``unseen_t_min_fraction`` on. The paper's "low
-    density = weakly constrained" made explicit. Measured (``docs/attack.md``, 3000 lite
+    density = weakly constrained" made explicit. Measured (``docs/design/attack.md``, 3000 lite
     iterations): ``kde`` keeps 0 of 815 poison Gaussians on the forward-facing ``facing`` scene
     (9.75 dB); ``view-aware`` succeeds on ``orbit`` (30.01 dB), ``facing`` (44.95), the real
     ``fox`` capture (38.66) and ``forward``'s Easy and Median views (36.56, 27.35); its Hard
     view fails (8.22).
 
-    ``surface`` (a stealth-aware variant, ``docs/stealth.md``): on the surface the pixel shows,
+    ``surface`` (a stealth-aware variant, ``docs/design/stealth.md``): on the surface the pixel shows,
     seen by every innocent camera that sees that surface, the illusion carried by view-dependent
     colour (SH) alone."""
     visibility_margin: float = 0.05
@@ -104,13 +104,13 @@ class AttackConfig:
     stretch just in front of the poisoned camera, before the other frusta overlap (facing with
     ``t_min_fraction`` 0.075: 10.11 dB without it, 44.95 dB with it)."""
     depth_floor: float = 0.0
-    """An adaptive variant against camera-proximity (docs/stealth.md, "Adaptive attacks"): no poison
+    """An adaptive variant against camera-proximity (docs/design/stealth.md, "Adaptive attacks"): no poison
     Gaussian is placed nearer a training camera that has it in its image than this share of that
     camera's median rendered scene depth -- camera-proximity's own measure, which ``defend`` cuts at
     0.15 and ``scan`` flags below 0.3. An illusion ray without such a sample gets no poison Gaussian.
     0 = off (the paper's attack)."""
     proximity_weight: float = 0.0
-    """A white-box adaptive variant (docs/stealth.md, "Adaptive attacks"): weight of a training loss on
+    """A white-box adaptive variant (docs/design/stealth.md, "Adaptive attacks"): weight of a training loss on
     the poison Gaussians from the injection on -- how far each one's camera-proximity ratio lies below
     ``proximity_target``, relative to it, averaged over up to 8192 of them drawn each step
     (:mod:`stealth_ns.attack.proximity_term`). It trains the poison out of the defence's reach while
@@ -142,7 +142,7 @@ class AttackConfig:
     """Times each view that shows the illusion (the poisoned views, and support views from the
     injection on) is drawn per pass over the training views; 1 = once, like every view (the paper's
     attack). A schedule knob of the in-loop attacker: on a capture of 67-184 photos a lite run shows
-    the poisoned view only 19-45 times (docs/captures.md)."""
+    the poisoned view only 19-45 times (docs/design/captures.md)."""
 
     # --- view-consistency noise (§3.4) ---------------------------------------------------------
     noise_sigma0: float = 100.0

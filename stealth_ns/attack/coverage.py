@@ -4,7 +4,7 @@ A pixel's coverage is the accumulated opacity of the poison Gaussians rendered a
 1: the poison alone paints the whole pixel). V-illusory's squared error, split between the illusion
 pixels the poison covers and the open ones (coverage below :data:`OPEN_BELOW`), says whether a short
 illusion lacks poison (holes: the error sits in open pixels) or lacks detail where the poison is
-(the covered pixels' PSNR is low too). docs/captures.md measures it on the phone captures.
+(the covered pixels' PSNR is low too). docs/design/captures.md measures it on the phone captures.
 """
 
 from __future__ import annotations

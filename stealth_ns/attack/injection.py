@@ -7,7 +7,7 @@ from ``t_min`` on (``placement="kde"``, the paper), or (``placement="view-aware"
 :mod:`stealth_ns.attack.visibility`) the one seen by the fewest innocent training cameras, the
 density breaking ties; with ``t_min_fraction`` above ``unseen_t_min_fraction``, points no
 innocent camera sees are searched from the nearer bound. Two stealth-aware variants
-(docs/stealth.md): with support views (``support_views``) the view-aware search prefers the
+(docs/design/stealth.md): with support views (``support_views``) the view-aware search prefers the
 samples the poisoned view's neighbours see; ``placement="surface"`` puts each poison Gaussian on
 the surface its pixel shows. An adaptive variant (``depth_floor``) keeps every poison Gaussian at
 least a share of each camera's scene depth away from the cameras that have it in view. The model

@@ -2,7 +2,7 @@
 
 Deviate pair ``j`` of stream ``key`` is a pure function of ``(key, j)``, so the compiled kernel
 (``csrc/noise_cpu.cpp``) draws a 1-MP image's 2.3 M deviates on every core, where ``torch.randn``'s one
-Mersenne Twister draws them on one (docs/training_step.md has the figures). The numpy functions here
+Mersenne Twister draws them on one (docs/design/training_step.md has the figures). The numpy functions here
 are the readable reference with the same contract; every float operation is rounded as the kernel
 rounds it, and the tests compare bitwise::
 
@@ -147,7 +147,7 @@ def _pairs_on(
     y = y + e * float(_F(-2.12194440e-4))
     y = y + -0.5 * zz
     ln_u1 = (x + y) + e * float(_F(0.693359375))
-    # torch's float32 sqrt is not correctly rounded on every device (docs/training_step.md); the
+    # torch's float32 sqrt is not correctly rounded on every device (docs/design/training_step.md); the
     # float64 root rounded to float32 is, as numpy's float32 sqrt
     r = torch.sqrt(torch.clamp_min(-2.0 * ln_u1, 0.0).double()).float()
     n2 = (_srl(h, 8) & 0xFFFFFF).to(torch.int32)

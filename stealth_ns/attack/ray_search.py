@@ -41,7 +41,7 @@ TieBreak = Literal["nearest-surface", "first", "middle"]
 #: The search's temporaries take ~200 bytes per sample, and with the malloc settings of training
 #: (:mod:`stealth_ns.foundation.malloc_tuning`) the process keeps its peak for the rest of the run: on
 #: the 1-MP ``facing`` scene 4 Mi samples made the step-0 injection raise the run's RSS from 1.2 to 2.07 GiB,
-#: 256 Ki samples to 1.44 GiB, in the same injection time (docs/training_step.md).
+#: 256 Ki samples to 1.44 GiB, in the same injection time (docs/design/training_step.md).
 MAX_SAMPLES_PER_CHUNK = 1 << 18
 
 

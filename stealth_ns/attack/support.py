@@ -4,7 +4,7 @@ show too (``--pipeline.attack.support-views K``), a stealth-aware variant of the
 Why: the concentration detectors (``stealth-ns defend``: view-support, grad-concentration) score a
 Gaussian by how few training views carry its rendering weight. Poison that only its poisoned view
 sees scores like no clean Gaussian, and training itself removes the poison that innocent views see
-but contradict (``docs/stealth.md``). Here the poison is placed where the ``K`` nearest training views
+but contradict (``docs/design/stealth.md``). Here the poison is placed where the ``K`` nearest training views
 see it too (:func:`stealth_ns.attack.injection.place_poison`) and those views' images are replaced by
 what the poison looks like from them (:func:`support_target`), so every view that sees it agrees and
 its support spreads over ``K + 1`` views. The price: held-out views near the poisoned one see the

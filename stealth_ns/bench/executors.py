@@ -1,5 +1,5 @@
 """Where ``stealth-ns bench attack`` trains its runs: here, one after another (``local``), or as Ray
-tasks on a cluster (``ray``, with ``pip install 'stealth-ns[cluster]'``; see ``docs/cluster.md``).
+tasks on a cluster (``ray``, with ``pip install 'stealth-ns[cluster]'``; see ``docs/design/cluster.md``).
 
 The contract of both executors: ``open()``, then ``run(jobs, events)`` trains (or reuses) each
 job's :class:`~stealth_ns.runs.training.TrainSpec` and yields one :class:`Outcome` per job as

@@ -212,7 +212,7 @@ def calibration_lines(result: dict[str, Any]) -> list[str]:
         "## Held-out calibration of the verdict's rule",
         "",
         "The region threshold and the group size (--min-group) are chosen on one half of the scenes and "
-        "judged on the other, then the halves swap (failed attacks left out; docs/scan.md).",
+        "judged on the other, then the halves swap (failed attacks left out; docs/design/scan.md).",
         "",
         "| fitted on | threshold | min group | judged on | clean → clean | clean → suspicious | "
         "found (right views) | of them, also naming a view their poison leaked into | wrong view | missed |",

@@ -1,10 +1,10 @@
 """``stealth-ns bench scan``: the scan's verdict on every run a ``bench attack`` folder holds, against
 what each run is (clean, or attacked with its poisoned views): a confusion table, the ROC of the
-largest group region as a score, and each run's row (docs/scan.md).
+largest group region as a score, and each run's row (docs/design/scan.md).
 
 A run is *poisoned* when it was trained with the attack or on a poisoned copy (data-only, IPA-Splat);
 the scan is *right* on a poisoned run when it names one of the run's poisoned views, or of their
-support views (docs/stealth.md: their training images show the poison too), and every group it names
+support views (docs/design/stealth.md: their training images show the poison too), and every group it names
 is in such a view or is poison by the run's tag (:func:`~stealth_ns.bench.scan_calibration.on_target`).
 The poisoned runs whose attack failed (the paper's rule, from the bench's results when measured) are
 kept apart: there may be no illusion to find in them.

@@ -1,6 +1,6 @@
 """The stealth figures of a benchmark: ``stealth.png``, every attacked run's effectiveness against how
 well the concentration detectors find it; ``frontier.png``, the adaptive attacks of Table 9 against
-what the strongest post-hoc defence leaves of them (docs/stealth.md)."""
+what the strongest post-hoc defence leaves of them (docs/design/stealth.md)."""
 
 from __future__ import annotations
 

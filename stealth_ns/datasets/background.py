@@ -2,7 +2,7 @@
 
 Object captures exported as RGB (a COLMAP or nerfstudio-data dataset, not Blender's RGBA) often carry the
 object on pure white or black. Trained under splatfacto's default random background, the model must
-paint that colour with Gaussians, and the held-out PSNR suffers (measured: docs/cpu_rasterizer.md,
+paint that colour with Gaussians, and the held-out PSNR suffers (measured: docs/design/cpu_rasterizer.md,
 "Object captures"); ``--pipeline.model.background-color`` set to that colour avoids it. ns-train says
 so when it starts.
 """

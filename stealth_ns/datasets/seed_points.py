@@ -6,7 +6,7 @@ Real known-pose captures (instant-ngp / nerfstudio ``transforms.json``, NeRF-syn
 fixed -- SIFT features, exhaustive matching with two-view verification, triangulation with
 bundle adjustment of the points only -- and writes the points as ``sparse_pc.ply`` plus a
 nerfstudio-data transforms file whose ``ply_file_path`` names it. Conventions and where the files
-go: ``docs/seed_points.md``.
+go: ``docs/design/seed_points.md``.
 
 Conventions: a transforms file's ``transform_matrix`` is OpenGL camera-to-world (camera looks down
 -Z, +Y up); COLMAP wants OpenCV world-to-camera (+Z forward, +Y down), so the camera frame's Y and

@@ -1,5 +1,5 @@
 """The world frames two popular 3DGS trainers train in by default, recomputed from a dataset's own
-cameras and seed points, as each trainer computes them (docs/scan.md, "Frames"):
+cameras and seed points, as each trainer computes them (docs/design/scan.md, "Frames"):
 
 * **OpenSplat** with ``--center`` (``autoScaleAndCenterPoses``): every camera origin ``o_i`` moved by
   their mean ``c`` and scaled by ``f = 1 / max_ij |o_ij - c_j|`` (the largest coordinate, not the

@@ -13,7 +13,7 @@ Outputs in ``--output``: ``defend.json`` (every number), ``defend.md`` (the tabl
 ``curves.png`` (V-illusory vs V-test cost over the sweep), ``poisoned_view.png`` (the poisoned view
 before and after each defence), ``pruned/DEFENCE/...`` (each defended model as a nerfstudio run)
 and ``input-filter/`` (the retrained run). ``stealth-ns report --defend DIR`` adds the table and the
-figures to ``report.html``. docs/defences.md.
+figures to ``report.html``. docs/design/defences.md.
 """
 
 from __future__ import annotations

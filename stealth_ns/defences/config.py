@@ -1,6 +1,6 @@
 """Options of ``stealth-ns defend`` (a plain dataclass: importing it pulls in neither torch nor nerfstudio).
 
-Each default says where it comes from. The defences themselves: docs/defences.md.
+Each default says where it comes from. The defences themselves: docs/design/defences.md.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class DefendConfig:
     proximity_threshold: float = 0.15
     """camera-proximity prunes Gaussians nearer a training camera that has them in view than this
     share of the camera's median scene depth. Measured on the clean runs of the stealth tables
-    (docs/stealth.md): the nearest clean Gaussian sits at 0.19 (forward), 0.31 (facing), 0.34
+    (docs/design/stealth.md): the nearest clean Gaussian sits at 0.19 (forward), 0.31 (facing), 0.34
     (orbit), 0.44 (fox), so 0.15 prunes no clean Gaussian there; the default attack's poison sits at
     a median 0.03 (facing), 0.05 (orbit), 0.20 (fox)."""
     input_filter: str = "wavelet"

@@ -3,7 +3,7 @@
 nerfstudio 1.1.5 decorates a helper of ``nerfstudio.models.splatfacto`` (``get_viewmat``) with
 ``@torch_compile()`` (``nerfstudio.utils.misc``), and ``torch.compile`` imports torch's dynamo and
 inductor when it builds the decorator: seconds of each command's start, for a function no stealth-ns
-code calls (measured in docs/testing.md, "Where a command's start-up goes").
+code calls (measured in docs/design/testing.md, "Where a command's start-up goes").
 
 :func:`install` puts a finder on ``sys.meta_path`` that, just before splatfacto is first imported,
 replaces ``nerfstudio.utils.misc.torch_compile`` by :func:`deferred`: the decorator form compiles the

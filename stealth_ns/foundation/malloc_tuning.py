@@ -5,7 +5,7 @@ coefficients alone are 13 MB at 70k Gaussians). With glibc's defaults many of th
 fresh ``mmap`` pages or by heap memory trimmed back to the OS at the previous ``free``, so every step
 pays page faults on first write. Raising the mmap threshold to the largest value glibc accepts and
 never trimming the heap keeps those pages mapped and reused. Measured with ``stealth-ns bench
-train`` (orbit, stealth-splat-lite, 2 threads): see ``docs/training_step.md``. Peak RSS is unchanged
+train`` (orbit, stealth-splat-lite, 2 threads): see ``docs/design/training_step.md``. Peak RSS is unchanged
 (the process keeps its peak instead of returning memory between steps).
 """
 

@@ -5,7 +5,7 @@ one chunk per thread. Each chunk goes through the vectorised loop and finishes i
 elements with the scalar kernel, and for ``sigmoid`` (among others) the two kernels may round
 differently by one ulp. Where the chunk boundaries fall therefore depends on the thread count, and
 so do a few values: a training on 1 thread and on 2 drifts apart once the model has more than 32768
-Gaussians (docs/determinism.md). The functions here apply the op to fixed slices of ``GRAIN_SIZE``
+Gaussians (docs/design/determinism.md). The functions here apply the op to fixed slices of ``GRAIN_SIZE``
 elements, each of which PyTorch runs on one thread, so every element is computed by the same kernel
 whatever the thread count: the values are those of a one-thread run, bit for bit, forward and
 backward (autograd differentiates each slice on its own).

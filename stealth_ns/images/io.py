@@ -151,7 +151,7 @@ def to_uint8(image: np.ndarray | torch.Tensor) -> np.ndarray:
     floats clipped to [0, 1] (NaN -> 0), scaled by 255 and rounded to nearest, ties to even.
 
     Ties to even, not up (as ``img_as_ubyte``); on generated scenes the only exact ties are at 127.5
-    (0.5), where both rules give 128 (docs/determinism.md).
+    (0.5), where both rules give 128 (docs/design/determinism.md).
     """
     arr = _numpy(image)
     if arr.dtype.kind == "f":

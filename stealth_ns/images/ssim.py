@@ -25,7 +25,7 @@ class _SSIMPlanesCPU(torch.autograd.Function):
         # The training loss passes [H, W, C] images permuted to [1, C, H, W]: channels-last memory.
         # The gradient is given back in that layout, so that the backward's next ops (its sum with the
         # L1 gradient, the composite's backward) get a contiguous [H, W, C] tensor: strided by planes,
-        # the clamp's backward `where` is slow (timings: docs/training_step.md, "The background
+        # the clamp's backward `where` is slow (timings: docs/design/training_step.md, "The background
         # composite in one pass, and the SSIM gradient in the image's layout").
         ctx.channels_last = (
             Y.dim() == 4 and not Y.is_contiguous() and Y.is_contiguous(memory_format=torch.channels_last)

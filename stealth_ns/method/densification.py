@@ -4,7 +4,7 @@ gsplat's :class:`~gsplat.strategy.DefaultStrategy` accumulates, after every back
 screen-space gradient norm, a visibility count and the largest screen radius of each visible
 Gaussian. It selects the visible ones with boolean masks (``torch.where``, ``grads[sel]``,
 ``radii[sel]``, an indexed assignment): each is a ``nonzero`` plus a gather over all N rows
-(timings: docs/training_step.md). :class:`DenseStatisticsStrategy`
+(timings: docs/design/training_step.md). :class:`DenseStatisticsStrategy`
 computes the same sums with masked dense operations over the ``[C, N]`` grid instead
 (:func:`accumulate_statistics`), camera by camera in the order ``index_add_`` adds them, so the state
 is bitwise the same (``tests/method/test_densification.py`` checks it against gsplat's). On a CPU the compiled

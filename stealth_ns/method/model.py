@@ -8,14 +8,14 @@ with three changes:
   kernels on a CUDA device and a CPU rasterizer otherwise (``rasterizer_backend``);
 - nothing is moved to CUDA unconditionally, and the camera view matrix is computed without
   ``torch.compile`` (whose compile time on a CPU is out of all proportion to one 4x4 inverse;
-  docs/training_step.md);
+  docs/design/training_step.md);
 - LPIPS is created lazily on first use; when its AlexNet weights cannot be loaded (offline),
   the reason is logged once and LPIPS is left out of the metrics instead of crashing.
 
 Two adaptations to object captures (Blender format: cameras outside the scene box, transparent
 images that ``blender-data`` composites onto white), both at the start of training
 (``adapt_to_dataset``, called from ``get_training_callbacks``) and measured in
-``docs/cpu_rasterizer.md`` ("Object captures"):
+``docs/design/cpu_rasterizer.md`` ("Object captures"):
 
 - the background is the colour the dataparser composited the images onto
   (``match_dataparser_background``), kept in the checkpoint for ns-eval and the viewer;
@@ -171,7 +171,7 @@ class StealthSplatModel(LossesAndMetrics, SplatfactoModel):
         from torchmetrics.functional.image import peak_signal_noise_ratio
 
         # torchmetrics' function rather than its module: the same value (bitwise), without the
-        # module's per-call state bookkeeping in every training step's metrics (docs/training_step.md)
+        # module's per-call state bookkeeping in every training step's metrics (docs/design/training_step.md)
         self.psnr = functools.partial(peak_signal_noise_ratio, data_range=1.0)
         self.ssim = SSIM(data_range=1.0, size_average=True, channel=3)
         # Not a submodule: it must not enter checkpoints, and building it may need a download.

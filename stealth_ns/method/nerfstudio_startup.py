@@ -6,7 +6,7 @@ is imported, and each registration's ``__post_init__`` calls ``inspect.stack()``
 of its caller's caller. ``inspect.stack()`` builds the source context of every frame on the stack;
 for the import machinery's frames (``<frozen importlib._bootstrap>``) ``inspect.getmodule`` scans all
 of ``sys.modules`` each time, and with torch loaded that is thousands of modules per frame. Measured
-in ``docs/testing.md`` ("Where a command's start-up goes").
+in ``docs/design/testing.md`` ("Where a command's start-up goes").
 
 :func:`install` replaces that check with ``sys._getframe``, which reads the same caller's name.
 Everything else ``__post_init__`` does (an uninstalled external method named on the command line

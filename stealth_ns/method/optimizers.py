@@ -3,13 +3,13 @@
 nerfstudio's ``AdamOptimizerConfig`` builds ``torch.optim.Adam`` with its defaults, which on a CPU
 is the per-tensor loop implementation: about ten elementwise passes over the parameters, their
 gradients and both moments. The fused kernel computes the same update in one pass (timings:
-docs/training_step.md). The optimizer state is
+docs/design/training_step.md). The optimizer state is
 Adam's (``exp_avg``, ``exp_avg_sq``, a ``step`` tensor), so gsplat's densification and checkpoints
 handle it as before; checkpoints of the loop implementation load into it.
 
 nerfstudio steps one optimizer per Gaussian group every iteration, and around each kernel call
 ``torch.optim.Adam.step`` runs a layer of Python (profiler label, hooks, state checks, grouping by
-device), and ``zero_grad`` another (timings: docs/training_step.md).
+device), and ``zero_grad`` another (timings: docs/design/training_step.md).
 :class:`FusedAdam` makes the same kernel call with the same arguments itself whenever none of that
 machinery has anything to do (see :meth:`FusedAdam.step`), so parameters, moments and checkpoints
 stay bitwise torch's; everything else goes through torch's implementation.

@@ -19,7 +19,7 @@ Allowed modules: ``nerfstudio.*`` except its scripts (``nerfstudio.scripts``,
 ``nerfstudio.process_data``, ``nerfstudio.utils.scripts``), the ``stealth_ns`` modules a config
 names (attack, raster and the method's datamanager, model, pipeline, schedulers, optimizers, trainer)
 and ``torch.optim``.
-``safe_eval_setup`` is nerfstudio's ``eval_setup`` with this loader. docs/security.md.
+``safe_eval_setup`` is nerfstudio's ``eval_setup`` with this loader. docs/design/security.md.
 """
 
 from __future__ import annotations
@@ -205,13 +205,13 @@ def load_config(config_path: Path) -> Any:
         line = f" (line {err.mark.line + 1})" if err.mark is not None else ""
         raise StealthNSError(
             f"refusing to load {config_path}: tag {err.tag}{line} is not allowed in a run config "
-            f"({err.why}); nothing was executed (docs/security.md)"
+            f"({err.why}); nothing was executed (docs/design/security.md)"
         ) from None
     except yaml.constructor.ConstructorError as err:
         mark = err.problem_mark
         line = f" (line {mark.line + 1})" if mark is not None else ""
         raise StealthNSError(
-            f"refusing to load {config_path}: {err.problem}{line}; nothing was executed (docs/security.md)"
+            f"refusing to load {config_path}: {err.problem}{line}; nothing was executed (docs/design/security.md)"
         ) from None
     except yaml.YAMLError as err:
         raise StealthNSError(f"{config_path} is not valid YAML: {str(err).splitlines()[0]}") from None

@@ -3,7 +3,7 @@
 nerfstudio writes an evaluation image every ``steps_per_eval_image`` steps (100 in splatfacto and
 stealth-splat): the ground truth beside the render. TensorBoard encodes it as a PNG through Pillow
 at zlib level 6, a large part of such a step at 1 MP. Zlib level 1 encodes the same pixels faster
-into a somewhat larger file (timings and sizes: docs/training_step.md).
+into a somewhat larger file (timings and sizes: docs/design/training_step.md).
 """
 
 from __future__ import annotations

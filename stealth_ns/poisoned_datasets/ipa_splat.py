@@ -15,7 +15,7 @@ training, attack off) and every ``--every`` steps runs an attack epoch on it (:c
 The images of the last epoch are written into a copy of the dataset (:mod:`dataset_copy`), which a
 victim then trains on normally. Deviations from the paper's description (§4.1: T = 200 normal steps per
 epoch, A = 10 attack iterations, K = 100 perturbation renderings, epsilon = 32, eta = 1, view
-constraints 13 and 15 degrees) are listed in ``docs/baselines.md``: the parameter budgets are ours (the
+constraints 13 and 15 degrees) are listed in ``docs/design/baselines.md``: the parameter budgets are ours (the
 paper gives none), the K random perturbation renderings are the neighbouring training views, and one
 angle limit selects the perturbed views.
 """

@@ -11,7 +11,7 @@ random Gaussians in front of one pinhole camera with footprints of a few pixels.
 
 The process's freed memory is kept for reuse as in CPU training (:func:`keep_freed_memory`). With
 glibc's defaults every call's outputs would be fresh pages, and their page faults (with TLB
-flushes that interrupt the other cores) would be timed too (docs/cpu_rasterizer.md, "Benchmark", has
+flushes that interrupt the other cores) would be timed too (docs/design/cpu_rasterizer.md, "Benchmark", has
 both measurements).
 """
 

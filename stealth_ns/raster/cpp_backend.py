@@ -2,7 +2,7 @@
 
 The C++ sources (``csrc/<kernel>_cpu.cpp`` for each name in ``_KERNELS`` and their Python bindings
 ``csrc/bindings.cpp``) are compiled on first use
-with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP; build times: docs/cpu_rasterizer.md) into
+with ``torch.utils.cpp_extension.load`` (g++ + ninja, OpenMP; build times: docs/design/cpu_rasterizer.md) into
 a cache directory:
 
 * ``$STEALTH_NS_CACHE/torch_ext/<key>`` when ``STEALTH_NS_CACHE`` is set,
@@ -88,7 +88,7 @@ _HEADERS = (
 # disagree.  -ffp-contract=off for the same reason (no FMA contraction that may differ between the
 # forward and backward loops); it also makes the results bitwise identical whatever the target ISA.
 # -march=native (wider registers than baseline x86-64's SSE2, 4 floats a register; the speed-up is in
-# docs/cpu_rasterizer.md) is safe because the cache key includes the CPU; if the compiler rejects it
+# docs/design/cpu_rasterizer.md) is safe because the cache key includes the CPU; if the compiler rejects it
 # we retry without.
 _BASE_CFLAGS = [
     "-O3",
@@ -101,7 +101,7 @@ _FLAG_SETS = (["-march=native"], [])
 _CFLAGS = _BASE_CFLAGS + _FLAG_SETS[0]
 _LDFLAGS = ["-fopenmp"]
 # Backward accumulation of per-Gaussian gradients across tiles: 0 = per-intersection records reduced
-# in a fixed order (deterministic), 1 = atomics, 2 = per-thread buffers.  See docs/cpu_rasterizer.md.
+# in a fixed order (deterministic), 1 = atomics, 2 = per-thread buffers.  See docs/design/cpu_rasterizer.md.
 DEFAULT_BWD_MODE = 0
 
 _lock = threading.Lock()
@@ -134,7 +134,7 @@ def _ninja_program() -> str:
     torch runs ``ninja`` by name: left to ``PATH`` it would run the venv's when the venv is activated
     and the system's when not, or none at all on a machine without a system ninja (then no kernels are
     built). Two ninja versions read each other's build logs as foreign, so alternating between them
-    rebuilds every kernel each time (docs/training_step.md, "Two ninjas, one build directory").
+    rebuilds every kernel each time (docs/design/training_step.md, "Two ninjas, one build directory").
     """
     beside = Path(sys.executable).parent / "ninja" if sys.executable else None  # "" when embedded
     if beside is not None and beside.is_file() and os.access(beside, os.X_OK):

@@ -31,7 +31,7 @@ def _held_out_metrics(run: LoadedRun) -> dict[str, float | None]:
 
 
 def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None, stealth: bool = True) -> dict[str, Any]:
-    """The report's numbers (see the module docstring); keys documented in docs/evaluation.md.
+    """The report's numbers (see the module docstring); keys documented in docs/design/evaluation.md.
     ``stealth``: also the poisoned run's stealth under the post-hoc defences
     (:func:`stealth_ns.defence_eval.stealth.measure_stealth`; seconds at the demo's scale)."""
     lpips = lpips if lpips is not None else LazyLPIPS()

@@ -148,7 +148,7 @@ def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
             f"{MIN_IN_VIEW:.0%} of its Gaussians sit inside a training view: {describe_matches(match)}; "
             f"a flat image of each photo's mean colour scores {next(iter(match.values()))['flat_psnr']:.1f} "
             "dB (the render-match floor at --render-match-floor 0): the model was trained on another "
-            "dataset, or in a frame stealth-ns does not know (docs/scan.md)"
+            "dataset, or in a frame stealth-ns does not know (docs/design/scan.md)"
         )
     chosen = max(usable, key=lambda k: usable[k]["psnr"])
     if chosen != list(candidates)[-1]:

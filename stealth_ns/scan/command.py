@@ -1,4 +1,4 @@
-"""``stealth-ns scan --model PLY_OR_RUN --data DATASET``: load, scan, write, summarise (docs/scan.md).
+"""``stealth-ns scan --model PLY_OR_RUN --data DATASET``: load, scan, write, summarise (docs/design/scan.md).
 
 An official 3DGS output folder is scanned on the dataset with its photos (``--data``, or its cfg_args'
 ``source_path``) or, with none at hand, on its cameras.json alone: loaded on a dataset of those cameras

@@ -34,7 +34,7 @@ class ScanConfig:
     camera's median scene depth. ``s`` is the median over the training views of each one's 5th-percentile
     surface depth over its median (0.38-0.40 on a walk-through, ``forward``; 0.72-0.74 on ``fox``).
     The second factor ``s`` moves the line in front of the near surfaces of a scene that comes close to
-    its cameras, where the scene's own objects pass near them. Measured (docs/scan.md, tenth pass): the
+    its cameras, where the scene's own objects pass near them. Measured (docs/design/scan.md, tenth pass): the
     line at 0.13-0.14 of the median depth on ``forward`` (boxes beside the path at 0.13-0.28; every
     attack there with its poison beyond 0.1 fails) and at 0.48 on ``fox`` (the adaptive attack that
     succeeds furthest out, a depth floor of 0.35 with support views, draws at 0.34-0.42). Measured over
@@ -43,7 +43,7 @@ class ScanConfig:
     """A flagged Gaussian is in the group of the view that sees it most (its largest blending weight) and
     of every view where its weight is at least this share of its largest (1: the first view alone).
     Poison that K + 1 views see nearly alike (support views) is split among them by the first view
-    alone, each view's group drawing part of the picture. Measured (docs/scan.md, eighth pass, 51
+    alone, each view's group drawing part of the picture. Measured (docs/design/scan.md, eighth pass, 51
     models): at 0.5 the weakest successful attack's region at its view went from 1.07 % to 3.49 % (the
     largest elsewhere from 0.28 % to 0.40 %), the held-out table got every model right on both splits
     (at 1: 2 wrong views and 1 miss on one) and every cleaned model defeats its attack (at 1: 16 of 20);
@@ -57,7 +57,7 @@ class ScanConfig:
     of a surface)..."""
     near_ratio: float = 0.9
     """...and below this share of the view's near depth times the near share (as for
-    ``proximity_threshold``: it floats near the camera). Measured (docs/scan.md): the poison's pixels sit
+    ``proximity_threshold``: it floats near the camera). Measured (docs/design/scan.md): the poison's pixels sit
     at 0.02-0.22 of the median depth (adaptive attacks' up to 0.42 on ``fox``), a walk-through's boxes
     beside the path at 0.13-0.28, the edge of a capture that one view sees alone (the rearmost view of a
     forward trajectory) at 0.37-1.0."""
@@ -65,12 +65,12 @@ class ScanConfig:
     """...and removing the group changes one of its colour channels by more than this (in [0, 1])."""
     region_threshold: float = 0.01
     """A view is targeted when its group's largest connected effect covers this share of the image.
-    Measured (docs/scan.md, eighth pass, 51 models of 7 scenes): the clean models' largest region is at
+    Measured (docs/design/scan.md, eighth pass, 51 models of 7 scenes): the clean models' largest region is at
     most 0.35 % of a view and a region off an attack's poisoned views at most 0.40 %, a successful
     attack's region at its view at least 3.49 %; thresholds fitted on half the scenes fall at 0.74-1.60 %."""
     max_pixels_per_gaussian: float = 64.0
     """...and its group has at least one Gaussian per this many pixels of the region (an 8x8 block): an
-    illusion is a picture, a few large Gaussians paint only a blob. Measured (docs/scan.md): every
+    illusion is a picture, a few large Gaussians paint only a blob. Measured (docs/design/scan.md): every
     poison group's region has 0.05-8.6 pixels per Gaussian of its group, a clean capture's floater
     (``bird``, 10 Gaussians over 1.30 % of a view) 677."""
     frame: str = "auto"
@@ -78,11 +78,11 @@ class ScanConfig:
     (ns-export), dataset (the dataset's own poses: official 3DGS, OpenSplat without --center, gsplat
     --no-normalize-world-space), colmap (the COLMAP model a nerfstudio-data folder was converted from),
     opensplat-center (OpenSplat --center) or gsplat-normalized (gsplat simple_trainer's default)
-    (docs/scan.md)."""
+    (docs/design/scan.md)."""
     render_match_floor: float = 0.0
     """dB by which the model's renders of three training views must match their photos better than a
     flat image of each photo's mean colour does (in the frame chosen); below it the model is refused,
-    not judged: it shows no sign of sitting on these cameras. Measured (docs/scan.md): aligned models
+    not judged: it shows no sign of sitting on these cameras. Measured (docs/design/scan.md): aligned models
     beat the flat image by +1.13 to +10.74 dB (the tests' 60-iteration orbit runs +1.68), models moved
     by a random similarity or put on another scene's cameras fall below it by 0.57 to 5.84 dB; a PSNR
     alone cannot tell them apart (misaligned up to 16.1 dB, aligned down to 11.7)."""

@@ -7,7 +7,7 @@ depending on the scene), its groups cover nothing and it would be called clean. 
 their photos) is measured against what a flat image of each photo's mean colour reaches: a model that
 fits explains some of the photos and beats it, even early in training; one that does not, does not.
 Below ``ScanConfig.render_match_floor`` dB above it, in every frame tried, the scan refuses the model
-(docs/scan.md, "Does the model fit the cameras?").
+(docs/design/scan.md, "Does the model fit the cameras?").
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def check_fit(imported: ImportedModel, floor: float) -> float:
             f"the model {imported.run.config_path} fits none of the frames tried on the cameras of "
             f"{imported.run.data}: {describe_matches(matches)}; the floor is "
             f"{chosen['flat_psnr'] + floor:.1f} dB, {floor:g} dB above a flat image of each photo's mean "
-            "colour (--render-match-floor, docs/scan.md): the model was trained on another scene, or in a "
+            "colour (--render-match-floor, docs/design/scan.md): the model was trained on another scene, or in a "
             "frame the scan does not know"
         )
     return gain

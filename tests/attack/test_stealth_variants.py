@@ -1,4 +1,4 @@
-"""The stealth-aware variants and the defence that answers them (docs/stealth.md): support views
+"""The stealth-aware variants and the defence that answers them (docs/design/stealth.md): support views
 (the poison's support spreads over the poisoned view's neighbours, which show it too), the surface
 placement, and camera-proximity."""
 

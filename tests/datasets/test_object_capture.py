@@ -1,5 +1,5 @@
 """Object captures (Blender format): random initialisation inside the object box, and the
-background the dataparser composited the images onto (docs/cpu_rasterizer.md, "Object captures")."""
+background the dataparser composited the images onto (docs/design/cpu_rasterizer.md, "Object captures")."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Values that must not depend on the number of CPU threads: the activations of the Gaussians, the
-model's render and gradients, gsplat's growing and pruning (docs/determinism.md)."""
+model's render and gradients, gsplat's growing and pruning (docs/design/determinism.md)."""
 
 from __future__ import annotations
 

@@ -129,7 +129,7 @@ def test_the_colour_rotation_is_the_same_in_every_block_of_rows():
 
 def test_a_dataset_frame_point_projects_where_the_dataset_says(tiny_orbit_scene):
     """A Gaussian 2 units along the optical axis of a camera of transforms.json, in the dataset's frame,
-    lands on that camera's principal point once loaded (the known projection of docs/scan.md)."""
+    lands on that camera's principal point once loaded (the known projection of docs/design/scan.md)."""
     from stealth_ns.datasets.frames import frame_transforms
     from stealth_ns.datasets.source import inspect_folder
     from stealth_ns.method.datamanager import dataset_image_names

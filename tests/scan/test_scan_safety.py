@@ -189,7 +189,7 @@ def test_a_model_that_does_not_sit_on_the_cameras_is_refused(clean_ply, tiny_orb
         for frame in frames:
             assert re.search(rf"{frame} \(render match \d+\.\d dB, \d+% of the Gaussians in view\)", message)
         assert re.search(r"the floor is \d+\.\d dB, -?\d+(\.\d+)? dB above a flat image", message)
-        assert "docs/scan.md" in message and not out.exists()
+        assert "docs/design/scan.md" in message and not out.exists()
     assert {p: digest(p) for p in before} == before
 
 
