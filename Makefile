@@ -5,7 +5,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.stealth-ns-installed
 
-.PHONY: env demo test test-fast test-gpu lint clean-env
+.PHONY: env demo test test-fast test-gpu lint docs clean-env
 
 env: $(STAMP)
 
@@ -13,8 +13,10 @@ $(STAMP): pyproject.toml scripts/bootstrap.sh
 	@bash scripts/bootstrap.sh "$(VENV)"
 	@touch $(STAMP)
 
+# DEMO_ARGS: extra options of stealth-ns demo (the docs' tests run it shortened: --iterations 60)
+DEMO_ARGS ?=
 demo: env
-	$(VENV)/bin/stealth-ns demo
+	$(VENV)/bin/stealth-ns demo $(DEMO_ARGS)
 
 # Test processes side by side (pytest-xdist), each test file in one of them: most of the suite waits on
 # one-threaded start-ups (torch, nerfstudio) of the commands it runs. On 2 cores: 1310 s with one, 643 s
@@ -31,6 +33,10 @@ test-fast: env
 # the CUDA path (gsplat against the compiled CPU backend, a poisoned run on the GPU); skipped without CUDA
 test-gpu: env
 	$(PY) -m pytest -m cuda
+
+# the docs site (docs/_build/html/index.html); warnings (a broken link, a missing page) are errors
+docs: env
+	$(VENV)/bin/sphinx-build -W --keep-going -q -b html docs docs/_build/html
 
 lint: env
 	$(VENV)/bin/ruff check .
