@@ -156,3 +156,18 @@ def train_side_by_side(specs: dict[str, TrainSpec], output: Path) -> dict[str, T
     finally:
         for bar in bars.values():
             bar.close()
+
+
+@dataclass
+class Demo:
+    """Generate the facing scene, train stealth-splat-lite on it clean and poisoned, and print the report."""
+
+    output: Path = Path("demo-output")
+    """Folder for the scene, the runs and the logs."""
+    iterations: int | None = None
+    """Training iterations (default: the method's 3000)."""
+    seed: int = 0
+    """Scene and training seed."""
+
+    def main(self) -> None:
+        print(run_demo(self.output, self.iterations, self.seed))

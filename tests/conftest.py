@@ -20,9 +20,10 @@ BIN = Path(sys.executable).parent
 
 
 #: ``stealth-ns`` commands that :func:`run_cli` runs in the test's own process, where torch, nerfstudio
-#: and stealth-ns are imported already (a fresh console script imports them first: docs/design/testing.md). The
-#: console script itself runs as a user runs it in tests/test_cli.py and in one test of each of these
-#: commands (``in_process=False``); the benchmarks (threads, allocator settings, Ray) run in their own.
+#: and stealth-ns are imported already (a fresh console script imports them first:
+#: docs/design/testing.md). The console script itself runs as a user runs it in tests/test_cli.py and in
+#: one test of each of these commands (``in_process=False``); the benchmarks (threads, allocator settings,
+#: Ray) run in their own.
 IN_PROCESS_COMMANDS = ("report", "defend", "scan", "poison-dataset")
 
 

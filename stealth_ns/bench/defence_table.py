@@ -113,7 +113,8 @@ def render_table(data: dict[str, Any]) -> str:
         "",
         "- `stealth-ns defend` on each scene's Table 1 poisoned run (`defend/SCENE/` next to this file has "
         "its defend.json, the figures and the pruned runs). Each defence prunes at its own rule "
-        "(docs/design/defences.md); V-illusory after and the V-test cost are rendered without the pruned Gaussians.",
+        "(docs/design/defences.md); V-illusory after and the V-test cost are rendered without the pruned "
+        "Gaussians.",
         "- input-filter retrains the run on wavelet-filtered images: it scores no Gaussian (AUROC/AP –).",
     ]
     lines += [f"- n/a for {scene}: {err}" for scene, err in data["errors"].items()]

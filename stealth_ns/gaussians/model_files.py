@@ -53,7 +53,8 @@ def model_format(path: Path) -> str:
     if suffix in (".splat", ".spz"):
         return suffix[1:]
     raise StealthNSError(
-        f"{path} is not a model file stealth-ns reads (a {', '.join(MODEL_SUFFIXES)} file: docs/design/scan.md)"
+        f"{path} is not a model file stealth-ns reads (a {', '.join(MODEL_SUFFIXES)} file: "
+        "docs/design/scan.md)"
     )
 
 

@@ -16,6 +16,9 @@ import torch
 from torch import Tensor
 
 ALEXNET_WEIGHTS = "alexnet-owt-7be5be79.pth"
+_REASONS_SAID: set[str] = set()
+"""The reasons for LPIPS being unavailable that this process has printed: each is printed once, however
+many evaluations build their own :class:`LazyLPIPS`."""
 
 
 def alexnet_weights_path() -> Path:
@@ -43,9 +46,10 @@ class LazyLPIPS:
                 self._metric = LearnedPerceptualImagePatchSimilarity(normalize=True)
             except Exception as err:  # noqa: BLE001 - any failure means "unavailable", never a crash
                 self.reason = f"{type(err).__name__}: {err}".splitlines()[0]
-        if self._metric is None:
+        if self._metric is None and self.reason not in _REASONS_SAID:
             from nerfstudio.utils.rich_utils import CONSOLE
 
+            _REASONS_SAID.add(self.reason)
             CONSOLE.print(f"[yellow]LPIPS unavailable: {self.reason}")
 
     @property

@@ -48,6 +48,7 @@ from stealth_ns.method.checkpoints import checkpoint_mismatch
 from stealth_ns.method.datamanager import NoiseSpec, StealthDataManager, dataset_image_names
 from stealth_ns.method.injection import inject_poison
 from stealth_ns.method.model import StealthSplatModel
+from stealth_ns.method.poison_schedule import poison_schedule
 from stealth_ns.method.viewer import StealthAttackPanel
 
 
@@ -182,28 +183,18 @@ class StealthPipeline(VanillaPipeline):
         self, attrs: TrainingCallbackAttributes, restored: dict[str, Any] | None
     ) -> NoiseSpec | None:
         """Hand the datamanager the poisoned targets and the noise schedule (a resumed run: the original
-        one); stop with a one-line error when the injection step lies past the run's end."""
+        one, :func:`~stealth_ns.method.poison_schedule.poison_schedule`); stop with a one-line error when
+        the injection step lies past the run's end."""
         cfg = self.config.attack
         max_steps = attrs.trainer.config.max_num_iterations if attrs.trainer is not None else 30_000
-        if restored is not None and restored.get("noise"):
-            max_steps = int(restored["noise"]["total_steps"])
-        if restored is None and cfg.density_guided and self.injection_step >= max_steps:  # injects nothing
-            given = "" if cfg.injection_step is not None else " (None: the end of the model's warm-up)"
-            fail(
-                f"--pipeline.attack.injection-step must be None or a step in [0, {max_steps}) "
-                f"(the run's --max-num-iterations), got {self.injection_step}{given}: "
-                "no poison Gaussian would be injected"
-            )
-        if restored is not None and cfg.support_views:
-            fail(
-                "resuming a run of --pipeline.attack.support-views is not supported (its support views' "
-                "images are rendered at the injection): train it again"
-            )
+        try:
+            noise = poison_schedule(cfg, self.injection_step, max_steps, restored)
+        except StealthNSError as err:
+            fail(err)
         targets = {}
         if cfg.gt_replacement:
             for v in self.poison_views:
                 targets[v.index] = training_target(v, self.datamanager.cached_train[v.index]["image"])
-        noise = NoiseSpec(cfg.noise_sigma0, cfg.noise_decay, max_steps, cfg.seed) if cfg.view_noise else None
         self.datamanager.set_poison(targets, noise)
         self.datamanager.set_view_repeat(cfg.poisoned_view_repeat, cfg.seed)
         return noise

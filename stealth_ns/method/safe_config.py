@@ -211,7 +211,8 @@ def load_config(config_path: Path) -> Any:
         mark = err.problem_mark
         line = f" (line {mark.line + 1})" if mark is not None else ""
         raise StealthNSError(
-            f"refusing to load {config_path}: {err.problem}{line}; nothing was executed (docs/design/security.md)"
+            f"refusing to load {config_path}: {err.problem}{line}; nothing was executed "
+            "(docs/design/security.md)"
         ) from None
     except yaml.YAMLError as err:
         raise StealthNSError(f"{config_path} is not valid YAML: {str(err).splitlines()[0]}") from None

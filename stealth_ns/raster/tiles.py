@@ -28,7 +28,8 @@ from stealth_ns.raster.torch_backend import ALPHA_MIN
 SPAN_PAD = 0.05  # pixels added to each side of a row's span (csrc: kSpanPad)
 FOOTPRINT_MIN_TILES = 9
 """A Gaussian whose 3-sigma square covers fewer tiles keeps them all: computing its footprint costs about
-what the pair visits it would save (measured with ``stealth-ns bench train``, docs/design/training_step.md)."""
+what the pair visits it would save (measured with ``stealth-ns bench train``,
+docs/design/training_step.md)."""
 
 
 @dataclass(frozen=True)

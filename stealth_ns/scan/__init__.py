@@ -1,1 +1,2 @@
-"""``stealth-ns scan``: poison in a 3DGS model from any trainer, found without poison tags (docs/design/scan.md)."""
+"""``stealth-ns scan``: poison in a 3DGS model from any trainer, found without poison tags
+(docs/design/scan.md)."""

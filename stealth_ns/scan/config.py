@@ -57,8 +57,8 @@ class ScanConfig:
     of a surface)..."""
     near_ratio: float = 0.9
     """...and below this share of the view's near depth times the near share (as for
-    ``proximity_threshold``: it floats near the camera). Measured (docs/design/scan.md): the poison's pixels sit
-    at 0.02-0.22 of the median depth (adaptive attacks' up to 0.42 on ``fox``), a walk-through's boxes
+    ``proximity_threshold``: it floats near the camera). Measured (docs/design/scan.md): the poison's pixels
+    sit at 0.02-0.22 of the median depth (adaptive attacks' up to 0.42 on ``fox``), a walk-through's boxes
     beside the path at 0.13-0.28, the edge of a capture that one view sees alone (the rearmost view of a
     forward trajectory) at 0.37-1.0."""
     colour_change: float = 0.1

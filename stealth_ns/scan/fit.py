@@ -34,7 +34,7 @@ def check_fit(imported: ImportedModel, floor: float) -> float:
             f"the model {imported.run.config_path} fits none of the frames tried on the cameras of "
             f"{imported.run.data}: {describe_matches(matches)}; the floor is "
             f"{chosen['flat_psnr'] + floor:.1f} dB, {floor:g} dB above a flat image of each photo's mean "
-            "colour (--render-match-floor, docs/design/scan.md): the model was trained on another scene, or in a "
-            "frame the scan does not know"
+            "colour (--render-match-floor, docs/design/scan.md): the model was trained on another scene, or "
+            "in a frame the scan does not know"
         )
     return gain

@@ -792,7 +792,8 @@ def test_failed_seed_points_fail_only_that_scenes_runs(folder_scene, fakes, tmp_
 
 
 def test_default_scenes_skip_a_missing_fox(tmp_path, monkeypatch, capsys):
-    from stealth_ns.cli import BenchAttack, main
+    from stealth_ns.bench.command_line import BenchAttack
+    from stealth_ns.cli import main
 
     assert BenchAttack.scenes == DEFAULT_SCENES == ("orbit", "forward", "facing", "fox=../shared/data/fox")
     monkeypatch.chdir(tmp_path)

@@ -259,8 +259,9 @@ def test_bad_input_gives_one_line_errors(tmp_path: Path, monkeypatch) -> None:
 
 def test_cli_reports_errors_in_one_line(tmp_path: Path, capsys, monkeypatch) -> None:
     from stealth_ns import cli
+    from stealth_ns.datasets.command_line import SeedPoints
 
-    assert cli.COMMANDS["seed-points"] is cli.SeedPoints
+    assert cli.COMMANDS["seed-points"] is SeedPoints
     monkeypatch.setattr("sys.argv", ["stealth-ns", "seed-points", "--data", str(tmp_path / "missing")])
     with pytest.raises(SystemExit) as exc:
         cli.entrypoint()

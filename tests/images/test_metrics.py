@@ -89,6 +89,22 @@ def test_lpips_unavailable_offline_gives_none_and_reason(monkeypatch, tmp_path):
     assert "AlexNet weights not found" in lpips.reason
 
 
+def test_lpips_unavailable_is_said_once_per_process(monkeypatch, tmp_path):
+    """Every evaluation builds its own LazyLPIPS: the warning is printed by the first, each keeps the
+    reason."""
+    from nerfstudio.utils.rich_utils import CONSOLE
+
+    from stealth_ns.images import metrics
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    monkeypatch.setattr(metrics, "_REASONS_SAID", set())
+    with CONSOLE.capture() as captured:
+        first, second = LazyLPIPS(), LazyLPIPS()
+        assert not first.available and not second.available
+    assert captured.get().count("LPIPS unavailable") == 1
+    assert first.reason == second.reason and "AlexNet weights not found" in first.reason
+
+
 def test_lpips_is_computed_when_the_weights_are_there(monkeypatch, tmp_path):
     from torchvision.models import alexnet
 

@@ -506,8 +506,8 @@ def test_cli_errors_are_one_line_with_status_2(scene, tmp_path, extra, expected)
 
 
 def test_cli_takes_view_noise_as_documented(scene, tmp_path):
-    """``--view-noise --noise-sigma0 S`` is the documented spelling (docs/design/baselines.md): it must reach the
-    attack's own check of the decay, not fail as an unrecognised option."""
+    """``--view-noise --noise-sigma0 S`` is the documented spelling (docs/design/baselines.md): it must reach
+    the attack's own check of the decay, not fail as an unrecognised option."""
     args = ["--data", str(scene), "--output", str(tmp_path / "out"), "--view-noise"]
     proc = run_cli("stealth-ns", "poison-dataset", *args, "--noise-decay", "linear", check=False, timeout=300)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
