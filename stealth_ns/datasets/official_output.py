@@ -57,6 +57,8 @@ ROTATION_TOLERANCE = 1e-4
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0])
 #: The placeholder images' grey (never compared with anything).
 PLACEHOLDER_GREY = 0.5
+#: Suffixes that make a cameras.json ``img_name`` a file name already (no ``.png`` is added to it).
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".exr")
 
 
 @dataclass(frozen=True)
@@ -319,10 +321,21 @@ def opengl_camera_to_world(camera: OfficialCamera) -> np.ndarray:
     return c2w
 
 
-def _file_names(cameras: tuple[OfficialCamera, ...]) -> list[str]:
-    """A placeholder image's path per camera, ``images/IMG_NAME.png`` (made unique by its index)."""
-    stems = [re.sub(r"[^A-Za-z0-9._-]", "_", c.name).lstrip(".") or "view" for c in cameras]
-    return [f"images/{s}.png" if stems.count(s) == 1 else f"images/{s}_{i}.png" for i, s in enumerate(stems)]
+def placeholder_paths(names: list[str]) -> list[str]:
+    """A placeholder image's path per camera name as cameras.json holds it: ``images/NAME``, with ``.png``
+    added only to a name without an image suffix (the official code writes ``image010``, other trainers
+    ``image010.png``); characters a file name should not hold become ``_``; a path two cameras would share
+    gets the camera's index before its suffix."""
+    paths = []
+    for name in names:
+        clean = re.sub(r"[^A-Za-z0-9._-]", "_", name).lstrip(".") or "view"
+        paths.append(clean if Path(clean).suffix.lower() in IMAGE_SUFFIXES else f"{clean}.png")
+    unique = []
+    for i, path in enumerate(paths):
+        if paths.count(path) > 1:
+            path = f"{Path(path).stem}_{i}{Path(path).suffix}"
+        unique.append(f"images/{path}")
+    return unique
 
 
 def write_camera_dataset(output: OfficialOutput, folder: Path) -> TrainingSplit:
@@ -332,7 +345,7 @@ def write_camera_dataset(output: OfficialOutput, folder: Path) -> TrainingSplit:
     placeholder image each. Returns the split."""
     folder = Path(folder)
     split = training_split(output.cameras, output.options)
-    names = _file_names(output.cameras)
+    names = placeholder_paths([c.name for c in output.cameras])
     frames = []
     for camera, name in zip(output.cameras, names, strict=True):
         w, h = training_size(camera, output.options.get("resolution", -1))

@@ -128,6 +128,27 @@ def test_cameras_json_is_read_in_the_official_conventions(tiny_orbit_scene, tmp_
     assert training_size(big, 800) == (800, 600)
 
 
+def test_the_camera_dataset_names_its_views_as_cameras_json_does(tiny_orbit_scene, tmp_path):
+    """A camera named with its file's suffix (``image010.png``, as some trainers write it) keeps that name;
+    one named without (the official code's ``image011``) gets ``.png``; two that would share a file are
+    told apart by their index."""
+    from stealth_ns.datasets.official_output import read_official_output, write_camera_dataset
+
+    cameras = official_cameras(tiny_orbit_scene)[:5]
+    for camera, name in zip(cameras, ["image010.png", "image011", "photo 12.JPG", "a", "a.png"], strict=True):
+        camera["img_name"] = name
+    model = tmp_path / "model"
+    (model / "point_cloud" / "iteration_30").mkdir(parents=True)
+    (model / "point_cloud" / "iteration_30" / "point_cloud.ply").write_bytes(b"")
+    (model / "cameras.json").write_text(json.dumps(cameras))
+    write_camera_dataset(read_official_output(model), tmp_path / "dataset")
+    meta = json.loads((tmp_path / "dataset" / "transforms.json").read_text())
+    names = [frame["file_path"] for frame in meta["frames"]]
+    assert names == ["images/image010.png", "images/image011.png", "images/photo_12.JPG", "images/a_3.png",
+                     "images/a_4.png"]  # fmt: skip
+    assert all((tmp_path / "dataset" / name).is_file() for name in names)
+
+
 def test_an_official_output_is_scanned_on_its_cameras_alone_as_with_its_photos(
     official_outputs, tiny_poisoned_run, tiny_orbit_scene, tmp_path
 ):
