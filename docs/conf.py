@@ -13,7 +13,7 @@ author = "stealth-ns developers"
 extensions = ["myst_parser", "cli_reference"]
 source_suffix = {".md": "markdown"}
 root_doc = "index"
-exclude_patterns = ["_build", "guides/CONTRACT.md"]
+exclude_patterns = ["_build"]
 html_theme = "furo"
 html_title = "stealth-ns"
 # links such as [the scan guide](../guides/scan.md#limits) are checked, headings included

@@ -3,7 +3,7 @@
 Every line of a ```` ```bash ```` block is a command a reader may paste; the tests run each of them
 (tests/docs/test_guide_examples.py), in one workspace folder, the README first and then the guides in
 :data:`GUIDE_ORDER`, each guide's commands with the files the earlier ones made. The conventions a page
-follows (docs/design/testing.md, "The docs' examples"):
+follows (docs/design/doc_examples.md):
 
 * a trailing ``\\`` joins the next line; ``#`` starts a comment line; ``# writes: PATH ...`` right after a
   command names the files it writes (globs allowed), which the test then finds;
@@ -157,7 +157,8 @@ def at_test_scale(argv: list[str], workspace: Path, port: int = 0) -> list[str]:
     """The command as the test runs it: small sizes and few iterations, never anything else changed.
 
     make-scene: 64x48 (object 48x48), 16 views (object 24); ns-train: 60 iterations, the attack injected
-    at step 20, no periodic full evaluation; demo, bench attack: 60 iterations; bench train: 3 steps after
+    at step 20, no periodic full evaluation; demo, bench attack: 60 iterations; ipa-poison: 60 iterations,
+    an attack epoch every 20; bench train: 3 steps after
     2 on a 64x48 scene; bench raster: --quick; ns-viewer: on 127.0.0.1 at ``port``; make demo: shortened
     and written into the workspace."""
     program, words = argv[0], argv[1:]
@@ -173,6 +174,8 @@ def at_test_scale(argv: list[str], workspace: Path, port: int = 0) -> list[str]:
     if program == "stealth-ns" and command == "bench train":
         argv = _set(_set(argv, "--warmup", "2"), "--steps", "3")
         return argv if "--data" in argv else _set(argv, "--resolution", TEST_SIZE)
+    if program == "stealth-ns" and words[:1] == ["ipa-poison"]:
+        return _set(_set(argv, "--iterations", TEST_ITERATIONS), "--every", "20")
     if program == "stealth-ns" and command == "bench raster":
         return argv if "--quick" in argv else [*argv, "--quick"]
     if program == "ns-train":
