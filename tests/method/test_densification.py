@@ -98,3 +98,40 @@ def test_radii_are_updated_in_place() -> None:
     radii = state["radii"]
     strategy._update_state(params, state, _info(1, n, seed=1))
     assert state["radii"] is radii
+
+
+def _refinements(num_views: int, refine_every: int, reset_every: int, start: int, stop: int) -> int:
+    """Steps at which gsplat's DefaultStrategy grows and prunes, with splatfacto's pause capped."""
+    pause = densification.capped_pause(num_views + refine_every, reset_every)
+    return sum(1 for s in range(start + 1, stop) if s % refine_every == 0 and s % reset_every >= pause)
+
+
+def test_refinement_pauses_after_a_reset_but_never_for_a_whole_interval() -> None:
+    assert densification.capped_pause(21 + 30, 300) == 51  # the demo: splatfacto's pause, as before
+    assert densification.capped_pause(161 + 100, 3000) == 261  # the 30k schedule: splatfacto's
+    assert densification.capped_pause(300 + 30, 300) == 150  # the lite schedule's cap
+    strategy = densification.DenseStatisticsStrategy(reset_every=300, pause_refine_after_reset=330)
+    assert strategy.pause_refine_after_reset == 150
+    lite = [_refinements(n, 30, 300, 150, 1500) for n in range(1, 2001)]
+    full = [_refinements(n, 100, 3000, 500, 15000) for n in range(1, 2001)]
+    assert min(lite) >= 22 and min(full) >= 72  # at least half of the 45 and 145 refinement steps
+    assert lite[299] == 24 and lite[160] == 24  # with the old pause: 0 at 300 views, 15 at 161
+    assert lite[20] == 36  # 21 views: unchanged (the old pause)
+
+
+@pytest.mark.slow
+def test_a_capture_of_hundreds_of_views_grows_and_prunes_gaussians(tmp_path) -> None:
+    """300 small views: before the pause was capped, no refinement step came (the log had no "GSs
+    duplicated" line and the model ended with its seed points)."""
+    from conftest import run_cli
+
+    from stealth_ns.scene_generator import make_scene
+
+    make_scene(preset="orbit", output=tmp_path / "many", resolution="32x24", views=300, seed=0)
+    proc = run_cli(
+        "ns-train", "stealth-splat-lite", "--vis", "tensorboard", "--output-dir", str(tmp_path / "out"),
+        "--max-num-iterations", "250", "--steps-per-eval-all-images", "100000", "--steps-per-eval-image",
+        "100000", "--pipeline.attack.enabled", "False", "nerfstudio-data", "--data", str(tmp_path / "many"),
+    )  # fmt: skip
+    log = proc.stdout + proc.stderr
+    assert "GSs duplicated" in log and "GSs pruned" in log, log[-3000:]
