@@ -70,6 +70,25 @@ def _run_here(argv: list[str]) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(["stealth-ns", *argv], status, out.getvalue(), err.getvalue())
 
 
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def stop_process(proc: subprocess.Popen, timeout: float = 15) -> None:
+    """Terminate ``proc`` and wait for it; kill it when it has not stopped within ``timeout`` seconds."""
+    proc.terminate()
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=timeout)
+
+
 def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
     """The folder ``name`` filled by ``build(folder)`` once per test session. Under pytest-xdist the
     workers share it: the first to ask builds it under a file lock, the others wait and reuse it (the

@@ -7,24 +7,17 @@ from __future__ import annotations
 
 import glob
 import os
-import socket
 import subprocess
 import time
 import urllib.request
 from pathlib import Path
 
 import pytest
-from conftest import BIN, IN_PROCESS_COMMANDS, _run_here
+from conftest import BIN, IN_PROCESS_COMMANDS, _run_here, free_port, stop_process
 from doc_examples import GUIDE_ORDER, GUIDES, ROOT, Example, at_test_scale, not_run_reason, page_examples
 
 PAGES = ("README.md", *(f"docs/guides/{name}.md" for name in GUIDE_ORDER))
 COMMAND_TIMEOUT = 900
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Workspace:
@@ -58,7 +51,7 @@ class Workspace:
         if not_run_reason(example.argv) or example.line in self.ran:
             return
         self.ran[example.line] = example.source
-        argv = at_test_scale(example.argv, self.folder, _free_port())
+        argv = at_test_scale(example.argv, self.folder, free_port())
         if argv[0] == "ns-viewer":
             self._serve(argv, example)
         else:
@@ -113,12 +106,7 @@ class Workspace:
                     time.sleep(1)
             raise AssertionError(f"{example.source}: {example.line} did not serve in 180 s")
         finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=15)
+            stop_process(proc)
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,6 @@ import json
 import os
 import re
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -34,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import train_tiny
+from conftest import free_port, stop_process, train_tiny
 from scipy import ndimage
 
 from stealth_ns.attack.record import AttackRecord
@@ -79,12 +78,6 @@ def find_chromium() -> str:
             return path
         pytest.skip(f"cannot install Debian's chromium with apt-get: {proc.stderr.strip()[-500:]}")
     pytest.skip("Debian's chromium is not installed and cannot be installed here (needs root and apt-get)")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(condition: Callable[[], object], timeout: float, what: str, interval: float = 0.25) -> object:
@@ -140,12 +133,7 @@ def viewer_url(run_config: Path, tmp_path_factory) -> Iterator[str]:
         wait_for(serving, 180, "ns-viewer to serve HTTP", interval=1.0)
         yield url
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=15)
+        stop_process(proc)
     assert not unexpected_tracebacks(log_path.read_text()), log_path.read_text()[-3000:]
 
 
