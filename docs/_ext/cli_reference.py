@@ -16,7 +16,7 @@ import os
 from docutils import nodes
 from docutils.parsers.rst import Directive
 
-HELP_COLUMNS = "100"
+HELP_COLUMNS = "80"
 
 
 def _help_text(cls: type, prog: str) -> str:
