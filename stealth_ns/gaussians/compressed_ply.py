@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.gaussians.ply import GaussianCloud, check_finite, open_ply
+from stealth_ns.gaussians.ply import GaussianCloud, checked_rows, open_ply
 from stealth_ns.gaussians.quantisation import (
     code_of,
     colour_of_dc,
@@ -87,7 +87,8 @@ def is_compressed_ply(path: Path) -> bool:
 def read_compressed_ply(path: Path) -> GaussianCloud:
     """Read a compressed PLY. StealthNSError with one line when the file is missing or not a PLY, lacks
     the ``chunk`` or ``vertex`` element or one of their properties, has a chunk count that does not fit
-    its Gaussians, an ``sh`` element of no SH degree 1-3 or of another length, or a NaN/infinite value."""
+    its Gaussians, an ``sh`` element of no SH degree 1-3 or of another length, or too many broken rows
+    (rows with a NaN or infinite value are left out: :mod:`~stealth_ns.gaussians.broken_rows`)."""
     path = Path(path)
     ply = open_ply(path, "compressed PLY")
     elements = {e.name: e for e in ply.elements}
@@ -110,8 +111,7 @@ def read_compressed_ply(path: Path) -> GaussianCloud:
         )
     sh_rest = _sh_rest(path, elements["sh"].data if "sh" in elements else None, n)
     cloud = _decoded(chunk, packed, with_colours, sh_rest)
-    check_finite(path, cloud)
-    return cloud
+    return checked_rows(path, cloud)
 
 
 def _columns(

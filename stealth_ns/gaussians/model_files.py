@@ -14,7 +14,9 @@ spz               ``.spz``               :mod:`~stealth_ns.gaussians.spz`: Niant
 
 Every reader returns a :class:`~stealth_ns.gaussians.ply.GaussianCloud` in the standard PLY's
 conventions and frame (the SPZ reader turns its RUB frame into the PLY's); the writers keep the rows'
-order, so row ``i`` of what is written is row ``i`` of the cloud. Every reading problem is one
+order, so row ``i`` of what is written is row ``i`` of the cloud. A few broken rows (a NaN or infinite
+value, a zero rotation) are left out on reading, the others in their order, and said in the cloud's
+``left_out`` (:mod:`~stealth_ns.gaussians.broken_rows`). Every reading problem is one
 :class:`~stealth_ns.foundation.errors.StealthNSError` line naming the file.
 """
 

@@ -15,11 +15,13 @@ read and kept in :attr:`GaussianCloud.extra` when numeric):
 ==================  ========================================================================
 
 ``ns-export`` of a stealth-splat run adds ``poison`` (uchar, 1 = injected; :mod:`stealth_ns.method.export`).
-Every reading problem is one :class:`~stealth_ns.foundation.errors.StealthNSError` line naming the file.
+Rows with a NaN or infinite value are left out (:mod:`~stealth_ns.gaussians.broken_rows`); every reading
+problem is one :class:`~stealth_ns.foundation.errors.StealthNSError` line naming the file.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.gaussians.broken_rows import FIELD_NAMES, RowsLeftOut, check_left_out, find_broken_rows
 
 REQUIRED: tuple[str, ...] = (
     "x",
@@ -60,6 +63,9 @@ class GaussianCloud:
     """``[N, K, 3]`` higher SH coefficients, coefficient-major (nerfstudio's ``features_rest``)."""
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     """Other numeric per-row properties of the file (e.g. ``poison``), ``[N]`` each."""
+    left_out: RowsLeftOut | None = None
+    """The broken rows the reader left out of the file (:mod:`~stealth_ns.gaussians.broken_rows`); None
+    when it left out none, and on a cloud not read from a file (a subset, a moved cloud)."""
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -77,7 +83,7 @@ class GaussianCloud:
         return np.asarray(tag) > 0
 
     def subset(self, rows: np.ndarray) -> GaussianCloud:
-        """The rows selected by ``rows`` (a bool mask or indices)."""
+        """The rows selected by ``rows`` (a bool mask or indices); without :attr:`left_out`."""
         return GaussianCloud(
             self.means[rows],
             self.log_scales[rows],
@@ -87,6 +93,12 @@ class GaussianCloud:
             self.sh_rest[rows],
             {k: v[rows] for k, v in self.extra.items()},
         )
+
+    def without_broken_rows(self) -> tuple[GaussianCloud, RowsLeftOut]:
+        """The cloud without its broken rows (:func:`~stealth_ns.gaussians.broken_rows.find_broken_rows`;
+        the others in their order; the cloud itself when none is) and the record of what was left out."""
+        broken, record = find_broken_rows({name: getattr(self, name) for name in FIELD_NAMES})
+        return (self.subset(~broken) if record.count else self), record
 
 
 def open_ply(path: Path, what: str) -> Any:
@@ -105,7 +117,8 @@ def open_ply(path: Path, what: str) -> Any:
 def read_gaussian_ply(path: Path) -> GaussianCloud:
     """Read a 3DGS PLY (binary either endianness, or ASCII). StealthNSError with one line when the file
     is missing or not a PLY, has no ``vertex`` element, lacks a property of :data:`REQUIRED`, has an
-    ``f_rest_*`` count of no SH degree 0-3, has no Gaussians, or has a row with a NaN/inf value."""
+    ``f_rest_*`` count of no SH degree 0-3, has no Gaussians, or too many broken rows (rows with a NaN
+    or infinite value or a zero rotation are left out: :mod:`~stealth_ns.gaussians.broken_rows`)."""
     path = Path(path)
     ply = open_ply(path, "PLY")
     if "vertex" not in [e.name for e in ply.elements]:
@@ -132,9 +145,7 @@ def read_gaussian_ply(path: Path) -> GaussianCloud:
     n = int(vertex.count)
     if n == 0:
         raise StealthNSError(f"{path} holds no Gaussians (element vertex 0)")
-    cloud = _cloud_of(vertex.data, degree, names)
-    check_finite(path, cloud)
-    return cloud
+    return checked_rows(path, _cloud_of(vertex.data, degree, names))
 
 
 def _column(data: np.ndarray, names: list[str]) -> np.ndarray:
@@ -160,19 +171,15 @@ def _cloud_of(data: np.ndarray, degree: int, names: set[str]) -> GaussianCloud:
     )
 
 
-def check_finite(path: Path, cloud: GaussianCloud) -> None:
-    """StealthNSError naming ``path`` and the first rows with a NaN or infinite value (every reader)."""
-    arrays = (cloud.means, cloud.log_scales, cloud.quats, cloud.opacity_logits, cloud.sh_dc, cloud.sh_rest)
-    ok = np.ones(len(cloud), dtype=bool)
-    for a in arrays:
-        ok &= np.isfinite(a.reshape(len(cloud), -1)).all(axis=1)
-    ok &= np.linalg.norm(cloud.quats, axis=1) > 0
-    if not ok.all():
-        bad = np.flatnonzero(~ok)
-        raise StealthNSError(
-            f"{path}: {bad.size} of {len(cloud)} Gaussians have a NaN, infinite or zero-rotation value "
-            f"(rows {', '.join(str(i) for i in bad[:5])}{', ...' if bad.size > 5 else ''})"
-        )
+def checked_rows(path: Path, cloud: GaussianCloud) -> GaussianCloud:
+    """What every reader returns of the ``cloud`` it decoded from ``path``: its broken rows left out, their
+    record in :attr:`GaussianCloud.left_out` (None when none was); StealthNSError with one line when the
+    file holds too many (:func:`~stealth_ns.gaussians.broken_rows.check_left_out`)."""
+    kept, record = cloud.without_broken_rows()
+    if record.count == 0:
+        return cloud
+    check_left_out(path, record)
+    return dataclasses.replace(kept, left_out=record)
 
 
 def write_gaussian_ply(path: Path, cloud: GaussianCloud, comment: str = "stealth-ns") -> None:

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.gaussians.ply import GaussianCloud, check_finite
+from stealth_ns.gaussians.ply import GaussianCloud, checked_rows
 from stealth_ns.gaussians.quantisation import (
     code_of,
     colour_of_dc,
@@ -47,7 +47,8 @@ ROW = np.dtype([("mean", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4
 
 def read_splat(path: Path) -> GaussianCloud:
     """Read a ``.splat`` file. StealthNSError with one line when it is missing, empty, not a whole
-    number of 32-byte rows (a truncated download), or has a NaN/infinite value or a non-positive scale."""
+    number of 32-byte rows (a truncated download), or has too many broken rows (rows with a NaN or
+    infinite value or a non-positive scale are left out: :mod:`~stealth_ns.gaussians.broken_rows`)."""
     path = Path(path)
     raw = read_model_bytes(path, ".splat")
     if not raw:
@@ -69,8 +70,7 @@ def read_splat(path: Path) -> GaussianCloud:
         sh_dc=dc_of_colour(rgba[:, :3] / 255).astype(np.float32),
         sh_rest=np.zeros((len(rows), 0, 3), np.float32),
     )
-    check_finite(path, cloud)
-    return cloud
+    return checked_rows(path, cloud)
 
 
 def splat_rows(cloud: GaussianCloud) -> np.ndarray:

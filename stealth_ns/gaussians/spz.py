@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from stealth_ns.foundation.errors import StealthNSError
-from stealth_ns.gaussians.ply import GaussianCloud, check_finite
+from stealth_ns.gaussians.ply import GaussianCloud, checked_rows
 from stealth_ns.gaussians.quantisation import (
     opacity_codes,
     opacity_logits,
@@ -75,7 +75,8 @@ _SQRT1_2 = np.sqrt(0.5)
 def read_spz(path: Path) -> GaussianCloud:
     """Read an ``.spz`` file (version 2 or 3). StealthNSError with one line when the file is missing,
     neither gzip nor SPZ, a broken gzip stream, of a bad magic, another version or an SH degree above 3,
-    cut short, without Gaussians, or has a NaN/infinite value."""
+    cut short, without Gaussians, or has too many broken rows (rows with a NaN or infinite value are
+    left out: :mod:`~stealth_ns.gaussians.broken_rows`)."""
     path = Path(path)
     payload = _payload(path, read_model_bytes(path, ".spz"))
     if len(payload) < HEADER.size:
@@ -93,8 +94,7 @@ def read_spz(path: Path) -> GaussianCloud:
         raise StealthNSError(f"{path}: SH degree {degree} is not supported (stealth-ns reads degrees 0-3)")
     sections = _sections(path, payload, version, n, (degree + 1) ** 2 - 1)
     cloud = _decoded(sections, version, fractional_bits)
-    check_finite(path, cloud)
-    return cloud
+    return checked_rows(path, cloud)
 
 
 def _version_error(path: Path, version: int | None) -> StealthNSError:

@@ -3,7 +3,8 @@ splatfacto run, loaded into a stealth-ns model on the dataset's cameras so that 
 runs (scan, report) renders and scores it as it does our own.
 
 * **PLY** (the official 3DGS code, gsplat, OpenSplat, ``ns-export gaussian-splat``): read by
-  :mod:`stealth_ns.gaussians.ply`, moved into nerfstudio's frame from the frame it was trained in
+  :mod:`stealth_ns.gaussians.ply` (a few broken rows left out, said in one printed line:
+  :mod:`stealth_ns.gaussians.broken_rows`), moved into nerfstudio's frame from the frame it was trained in
   (:mod:`stealth_ns.datasets.frames`; ``auto`` tries each and keeps the one whose renders match the
   training images best), loaded into a ``stealth-splat-lite`` pipeline set up on ``--data``.
 * **nerfstudio run** (``config.yml``): a stealth-ns run loads as it is (:func:`load_run`); another
@@ -16,6 +17,7 @@ The loaded model renders on the CPU backend, or gsplat on CUDA, as our runs do.
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -57,16 +59,20 @@ class ImportedModel:
     kind: str
     """"ply", "stealth-ns run" or "splatfacto run" (with the method's name)."""
     cloud: GaussianCloud
-    """The Gaussians as read, in the model's own frame (the scan's cleaned PLY is written from them)."""
+    """The Gaussians as read, in the model's own frame (the scan's cleaned PLY is written from them);
+    a model file's without the broken rows its reader left out (``cloud.left_out``)."""
     frame: str = "nerfstudio"
     frame_match: dict[str, dict[str, float]] = field(default_factory=dict)
     """Each frame tried -> ``psnr`` (dB, mean over the test views), ``in_view`` (share of Gaussians
     inside some training view) and ``flat_psnr`` (:func:`frame_match`); empty when the frame was known."""
 
 
-def load_model(model: Path, data: Path | None = None, frame: str = "auto") -> ImportedModel:
+def load_model(
+    model: Path, data: Path | None = None, frame: str = "auto", echo: Callable[[str], None] = print
+) -> ImportedModel:
     """Load ``model`` (a PLY, a run's config.yml or run folder) on ``data`` (required for a PLY; a run's
-    own dataset by default). StealthNSError with one line for every problem."""
+    own dataset by default). The broken rows left out of a model file are said in one line to ``echo``
+    (scan, report). StealthNSError with one line for every problem."""
     model = Path(model)
     if frame not in ("auto", *FRAMES):
         raise StealthNSError(f"--frame must be auto or one of {', '.join(FRAMES)}, got {frame!r}")
@@ -78,7 +84,7 @@ def load_model(model: Path, data: Path | None = None, frame: str = "auto") -> Im
                 f"--data is needed with a PLY, .splat or .spz model ({model}): the dataset whose cameras "
                 "it was trained on"
             )
-        return _load_ply(model, data, frame)
+        return _load_ply(model, data, frame, echo)
     config_path = run_file(model)
     if not config_path.is_file():
         raise StealthNSError(
@@ -125,8 +131,10 @@ def host_run(config: Any, label: Path, checkpoint: Path | None = None) -> Loaded
     return LoadedRun(Path(label), pipeline, LOADED_STEP, config, checkpoint)
 
 
-def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
+def _load_ply(path: Path, data: Path, frame: str, echo: Callable[[str], None]) -> ImportedModel:
     cloud = read_model_file(path)
+    if cloud.left_out is not None:
+        echo(f"{path}: {cloud.left_out.line()}")
     scene = inspect_folder("--data", str(data))
     run = host_run(host_config(scene), path)
     transforms = frame_transforms(run.pipeline.datamanager.train_dataparser_outputs, scene)

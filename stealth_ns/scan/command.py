@@ -98,8 +98,10 @@ def summary_lines(doc: dict[str, Any], output: Path) -> list[str]:
                 f"  no group covers {100 * cfg['region_threshold']:.1f}% of its view "
                 f"(largest {100 * share:.2f}%)"
             )
+    left_out = doc.get("rows_left_out")
+    broken = f", {left_out['count']} broken rows left out on reading" if left_out else ""
     lines.append(
         f"wrote {output / SCAN_FILE}, {output / HTML_FILE} and the cleaned model ({doc['removed']} Gaussians "
-        f"removed) in {doc['seconds']['total']:.0f} s"
+        f"removed{broken}) in {doc['seconds']['total']:.0f} s"
     )
     return lines

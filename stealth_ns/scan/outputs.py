@@ -4,12 +4,13 @@
   rendered group, each signal's rule and count, the model (kind, frame and how each frame matched),
   which steps read the photos and which the cameras alone (``photos``), timings; and, when the model
   carries stealth-ns's poison tag (our runs, their ``ns-export`` PLYs), how the scan compares with it
-  (``ground_truth``: never used by the verdict);
+  (``ground_truth``: never used by the verdict); the broken rows the model file's reader left out
+  (``rows_left_out``: :mod:`~stealth_ns.gaussians.broken_rows`; null when none);
 * ``images/VIEW_{full,without,flagged,effect}.png`` per targeted view, and ``scan.html``;
-* the cleaned model without the targeted groups, in the input's own frame: in the format of an input
-  model file (``cleaned.ply``, ``cleaned.compressed.ply``, ``cleaned.splat``, ``cleaned.spz``),
-  ``cleaned.ply`` for a run or an official 3DGS output; and for a nerfstudio run also ``cleaned/`` (a
-  nerfstudio run: ``ns-eval``, ``ns-viewer``);
+* the cleaned model without the targeted groups (and without the broken rows left out on reading), in
+  the input's own frame: in the format of an input model file (``cleaned.ply``, ``cleaned.compressed.ply``,
+  ``cleaned.splat``, ``cleaned.spz``), ``cleaned.ply`` for a run or an official 3DGS output; and for a
+  nerfstudio run also ``cleaned/`` (a nerfstudio run: ``ns-eval``, ``ns-viewer``);
 * ``.stealth-ns-scan.json``: the record of every file written, with its hash. A later scan into the
   same folder replaces those files (unchanged ones only) and refuses to write over any other, through
   a symbolic link, or over its own input (:func:`~stealth_ns.foundation.output_folder.claim_output`).
@@ -96,6 +97,18 @@ def ground_truth(result: ScanResult) -> dict[str, Any] | None:
     }
 
 
+def rows_left_out(result: ScanResult) -> dict[str, Any] | None:
+    """The broken rows the model file's reader left out (count, total, reasons, first rows), or None."""
+    record = result.model.cloud.left_out
+    if record is None:
+        return None
+    return {
+        **record.record(),
+        "note": "left out on reading: not scanned, and not in the cleaned model (the input without these "
+        "rows and without the targeted groups)",
+    }
+
+
 def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str, Any]:
     """scan.json's content."""
     imported, cfg = result.model, result.config
@@ -132,6 +145,7 @@ def scan_document(result: ScanResult, model_path: Path, data: Path) -> dict[str,
         "removed": int(result.removed.sum()),
         "groups": [group_entry(g) for g in result.groups],
         "ground_truth": ground_truth(result),
+        "rows_left_out": rows_left_out(result),
         "config": dataclasses.asdict(cfg),
         "seconds": result.seconds,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
@@ -154,7 +168,8 @@ def write_images(result: ScanResult, output: Path) -> dict[str, dict[str, str]]:
 
 
 def write_cleaned(result: ScanResult, output: Path, model_path: Path) -> dict[str, str]:
-    """The model without the targeted groups, in the format of the model file ``model_path``
+    """The model without the targeted groups (of the rows read: without the broken rows left out on
+    reading), in the format of the model file ``model_path``
     (:func:`~stealth_ns.scan.arguments.cleaned_model_name`; cleaned.ply for a run or an official
     output), and a nerfstudio run for a run input."""
     keep = ~result.removed

@@ -9,7 +9,8 @@ naming the file.
   splat-transform 2.7.1 (compressed PLY, SPZ v3 from a PLY, SPZ v4) and Niantic's C++ library (SPZ v2,
   v3). Each ``NAME.npz`` holds the values handed to the writer and, where there is one, what the
   writer's own reader makes of the file: stealth-ns must agree with that reader to float precision;
-* bad input: truncated, empty, of a bad magic or an unknown version, missing an element, NaN.
+* bad input: truncated, empty, of a bad magic or an unknown version, missing an element, NaN;
+* a few broken rows (NaN, infinite, a zero rotation) left out and recorded, up to the limit (issue 78).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 import pytest
 
 from stealth_ns.foundation.errors import StealthNSError
+from stealth_ns.gaussians.broken_rows import MAX_LEFT_OUT_SHARE
 from stealth_ns.gaussians.compressed_ply import compressed_ply_tables, read_compressed_ply
 from stealth_ns.gaussians.model_files import (
     MODEL_SUFFIXES,
@@ -30,8 +32,8 @@ from stealth_ns.gaussians.model_files import (
     read_model_file,
     write_model_file,
 )
-from stealth_ns.gaussians.ply import GaussianCloud, write_gaussian_ply
-from stealth_ns.gaussians.splat_file import read_splat, write_splat
+from stealth_ns.gaussians.ply import GaussianCloud, checked_rows, write_gaussian_ply
+from stealth_ns.gaussians.splat_file import ROW, read_splat, write_splat
 from stealth_ns.gaussians.spz import read_spz, spz_bytes, write_spz
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "formats"
@@ -359,7 +361,7 @@ def test_splat_errors(tmp_path):
     rows[32:36] = struct.pack("<f", float("nan"))
     nan = tmp_path / "nan.splat"
     nan.write_bytes(bytes(rows))
-    one_line_error(lambda: read_model_file(nan), str(nan), "NaN", "rows 1")
+    one_line_error(lambda: read_model_file(nan), str(nan), "1 of 40 Gaussians have a NaN", "rows 1", "2.5%")
 
 
 def spz_file(tmp_path: Path, payload: bytes, name: str = "bad.spz") -> Path:
@@ -420,9 +422,99 @@ def test_compressed_ply_errors(tmp_path):
     path = compressed_file(tmp_path, "sh-rows.ply", {**tables, "sh": tables["sh"][:299]})
     one_line_error(lambda: read_model_file(path), str(path), "299 rows for 300 Gaussians")
     nan_chunk = tables["chunk"].copy()
-    nan_chunk["max_x"][1] = np.nan
+    nan_chunk["max_x"][1] = np.nan  # the second chunk's 44 rows: far above the share left out
     path = compressed_file(tmp_path, "nan.ply", {**tables, "chunk": nan_chunk})
-    one_line_error(lambda: read_compressed_ply(path), str(path), "44 of 300 Gaussians have a NaN")
+    one_line_error(
+        lambda: read_compressed_ply(path), str(path), "44 of 300 Gaussians have a NaN", "14.7% of its rows"
+    )
     broken = tmp_path / "broken.compressed.ply"
     broken.write_bytes((DATA / "gsplat-1.5.3.compressed.ply").read_bytes()[:-200])
     one_line_error(lambda: read_model_file(broken), str(broken), "not a readable PLY file")
+
+
+# ------------------------------------------------------------------------------- broken rows
+
+
+def test_a_few_broken_rows_of_a_ply_are_left_out_and_recorded(tmp_path):
+    """Up to 1 % of the rows may be broken (here 5 of 500, one a zero rotation): they are left out, the
+    others read in their order, poison tag included; a sixth is one too many."""
+    assert MAX_LEFT_OUT_SHARE == 0.01
+    cloud = random_cloud(500, 1, extra=True)
+    cloud.means[5, 0] = np.nan
+    cloud.log_scales[17, 2] = np.inf
+    cloud.sh_rest[17, 1, 0] = np.nan  # the same row twice: counted once, under both reasons
+    cloud.quats[99] = 0.0
+    cloud.opacity_logits[250] = -np.inf
+    cloud.sh_dc[499, 1] = np.nan
+    path = tmp_path / "model.ply"
+    write_gaussian_ply(path, cloud)
+    back = read_model_file(path)
+    keep = np.ones(500, bool)
+    keep[[5, 17, 99, 250, 499]] = False
+    assert len(back) == 495
+    for key in FIELDS:
+        assert np.array_equal(getattr(back, key), getattr(cloud.subset(keep), key)), key
+    assert np.array_equal(back.poison_mask(), cloud.poison_mask()[keep])
+    record = back.left_out
+    assert (record.count, record.total, record.rows) == (5, 500, (5, 17, 99, 250, 499))
+    assert record.reasons == {
+        "NaN or infinite centre": 1,
+        "NaN or infinite scale": 1,
+        "NaN or infinite opacity": 1,
+        "NaN or infinite colour (SH degree 0)": 1,
+        "NaN or infinite colour (higher SH)": 1,
+        "zero rotation": 1,
+    }
+    said = record.line()
+    assert said.startswith("left out 5 of 500 Gaussians (1%, at most 1%): NaN or infinite centre (1), ")
+    assert said.endswith(", zero rotation (1); rows 5, 17, 99, 250, 499")
+    assert record.record()["rows"] == [5, 17, 99, 250, 499] and record.record()["limit_share"] == 0.01
+    assert back.subset(np.arange(3)).left_out is None  # a record of the file, not of a selection
+    cloud.means[300, 1] = np.inf
+    write_gaussian_ply(path, cloud)
+    one_line_error(
+        lambda: read_model_file(path),
+        str(path),
+        "6 of 500 Gaussians have a NaN, infinite or zero-rotation value (rows 5, 17, 99, 250, 300, ...)",
+        "1.2% of its rows, more than the 1% a reader leaves out",
+    )
+
+
+def test_a_few_broken_rows_of_a_splat_are_left_out(tmp_path):
+    """A .splat of 400 rows, 3 broken (a NaN centre, a zero scale, a zero rotation): left out, the rest
+    as the unbroken file reads; 5 broken (1.25 %) are refused."""
+    path = tmp_path / "model.splat"
+    write_splat(path, random_cloud(400, 0))
+    whole = read_splat(path)
+    assert whole.left_out is None
+    rows = np.frombuffer(path.read_bytes(), dtype=ROW).copy()
+    rows["mean"][7, 2] = np.nan
+    rows["scale"][123, 0] = 0.0  # log scale -inf
+    rows["rot"][300] = 128  # every component 0
+    broken = tmp_path / "broken.splat"
+    broken.write_bytes(rows.tobytes())
+    back = read_model_file(broken)
+    keep = np.ones(400, bool)
+    keep[[7, 123, 300]] = False
+    for key in FIELDS:
+        assert np.array_equal(getattr(back, key), getattr(whole.subset(keep), key)), key
+    assert (back.left_out.count, back.left_out.total, back.left_out.rows) == (3, 400, (7, 123, 300))
+    reasons = {"NaN or infinite centre": 1, "NaN or infinite scale": 1, "zero rotation": 1}
+    assert back.left_out.reasons == reasons
+    rows["mean"][[8, 9], 0] = np.inf
+    broken.write_bytes(rows.tobytes())
+    one_line_error(lambda: read_model_file(broken), str(broken), "5 of 400 Gaussians", "1.25% of its rows")
+
+
+def test_leaving_rows_out_is_pure_and_every_broken_row_is_refused(tmp_path):
+    cloud = random_cloud(10, 0)
+    same, record = cloud.without_broken_rows()
+    assert same is cloud and (record.count, record.total, record.reasons, record.rows) == (0, 10, {}, ())
+    assert checked_rows(tmp_path / "x.ply", cloud) is cloud and cloud.left_out is None
+    cloud.means[:] = np.nan
+    kept, record = cloud.without_broken_rows()
+    assert len(kept) == 0 and record.count == 10 and record.rows == (0, 1, 2, 3, 4)
+    assert np.isnan(cloud.means).all()  # the input is left as it was
+    one_line_error(
+        lambda: checked_rows(tmp_path / "x.ply", cloud), "x.ply", "10 of 10 Gaussians", "every row is broken"
+    )

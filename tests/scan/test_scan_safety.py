@@ -1,6 +1,7 @@
 """``stealth-ns scan`` and ``bench scan`` write only inside --output (never through a symbolic link, never
 over their input or a file they did not write, with a record of what they wrote), check their inputs
-before anything loads, and give no verdict on a model that does not sit on the cameras (issue 57).
+before anything loads, and give no verdict on a model that does not sit on the cameras (issue 57); a
+model with a few broken rows is scanned without them (issue 78).
 Every test hashes what lies outside --output (link targets, the model, the run, the dataset) before
 and after."""
 
@@ -191,6 +192,41 @@ def test_a_model_that_does_not_sit_on_the_cameras_is_refused(clean_ply, tiny_orb
         assert re.search(r"the floor is \d+\.\d dB, -?\d+(\.\d+)? dB above a flat image", message)
         assert "docs/design/scan.md" in message and not out.exists()
     assert {p: digest(p) for p in before} == before
+
+
+def test_a_model_with_broken_rows_is_scanned_without_them(clean_ply, tiny_orbit_scene, tmp_path, capsys):
+    """Three broken rows of the tiny clean model (a NaN centre, a zero rotation, an infinite scale; under
+    the 1 % left out) are left out: the scan says so in one line and in scan.json, and its cleaned model
+    lacks them; the model file and the dataset are left as they were (issue 78)."""
+    from stealth_ns.gaussians.ply import read_gaussian_ply, write_gaussian_ply
+
+    cloud = read_gaussian_ply(clean_ply)
+    n = len(cloud)
+    rows = [0, n // 2, n - 1]
+    assert 3 <= 0.01 * n
+    cloud.means[rows[0], 0] = np.nan
+    cloud.quats[rows[1]] = 0.0
+    cloud.log_scales[rows[2], 1] = np.inf
+    model = tmp_path / "broken.ply"
+    write_gaussian_ply(model, cloud)
+    before = {p: digest(p) for p in (model, tiny_orbit_scene)}
+    out = tmp_path / "scan"
+    capsys.readouterr()
+    stealth_ns("scan", "--model", model, "--data", tiny_orbit_scene, "--output", out)
+    said = capsys.readouterr().out
+    line = f"{model}: left out 3 of {n:,} Gaussians ("
+    assert said.count(line) == 1, said
+    assert f"; rows {rows[0]}, {rows[1]}, {rows[2]}\n" in said and "3 broken rows left out on reading" in said
+    doc = json.loads((out / "scan.json").read_text())
+    left = doc["rows_left_out"]
+    assert (left["count"], left["total"], left["rows"], left["limit_share"]) == (3, n, rows, 0.01)
+    assert left["reasons"] == {"NaN or infinite centre": 1, "NaN or infinite scale": 1, "zero rotation": 1}
+    assert "not in the cleaned model" in left["note"] and doc["model"]["gaussians"] == n - 3
+    cleaned = read_gaussian_ply(out / "cleaned.ply")
+    assert len(cleaned) == n - 3 - doc["removed"] and cleaned.left_out is None
+    assert f"3 of {n} rows left out on reading" in (out / "scan.html").read_text()
+    assert {p: digest(p) for p in before} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.ply", "scan"]
 
 
 # ------------------------------------------------------------------ bench scan
