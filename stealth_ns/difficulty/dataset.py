@@ -40,7 +40,8 @@ def detect_format(data: Path) -> tuple[Format, Path]:
     if any((data / f"transforms_{s}.json").is_file() for s in ("train", "val", "test")):
         raise StealthNSError(
             f"{data} is a blender-format dataset without a seed point cloud: the KDE difficulty protocol "
-            "needs seed points (nerfstudio-data with ply_file_path, or a COLMAP reconstruction)"
+            "needs seed points (nerfstudio-data with ply_file_path, or a COLMAP reconstruction); "
+            f"triangulate them with `stealth-ns seed-points --data {data}` and rank the seeded copy"
         )
     raise StealthNSError(
         f"{data} has no transforms.json (nerfstudio-data) and no COLMAP reconstruction "
@@ -60,7 +61,8 @@ def _check_seed_points(json_path: Path) -> None:
     ply = meta.get("ply_file_path")
     if not ply:
         raise StealthNSError(
-            f"{json_path} has no ply_file_path: the KDE difficulty protocol needs the scene's seed points"
+            f"{json_path} has no ply_file_path: the KDE difficulty protocol needs the scene's seed points; "
+            f"triangulate them with `stealth-ns seed-points --data {json_path.parent}`"
         )
     if not (json_path.parent / ply).is_file():
         raise StealthNSError(f"seed point file {json_path.parent / ply} (ply_file_path) does not exist")

@@ -232,12 +232,13 @@ def test_datasets_without_seed_points_are_refused(tmp_path):
     blender = tmp_path / "blender"
     blender.mkdir()
     (blender / "transforms_train.json").write_text(json.dumps({"camera_angle_x": 0.7, "frames": []}))
-    with pytest.raises(StealthNSError, match="needs seed points"):
+    with pytest.raises(StealthNSError, match="needs seed points") as refused:
         rank_scene_views(blender)
+    assert f"stealth-ns seed-points --data {blender}" in str(refused.value)
     no_ply = tmp_path / "no_ply"
     no_ply.mkdir()
     (no_ply / "transforms.json").write_text(json.dumps({"fl_x": 50.0, "frames": []}))
-    with pytest.raises(StealthNSError, match="needs the scene's seed points"):
+    with pytest.raises(StealthNSError, match="needs the scene's seed points; triangulate them with"):
         rank_scene_views(no_ply)
     (no_ply / "transforms.json").write_text("{not json")
     with pytest.raises(StealthNSError, match="cannot read"):
